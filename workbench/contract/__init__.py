@@ -1,0 +1,1 @@
+"""The data contract (../shared/spec/data-contract.md, version 1) in code: names, manifests, formats."""

@@ -1,0 +1,66 @@
+"""One exception root for the workbench; each subclass formats a message naming file, run and fault."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class WorkbenchError(Exception):
+    """Root of every error the workbench raises on bad input or a failed step.
+
+    The message is one line: where (file, run, line or field), what is wrong, and,
+    when useful, what to do about it. The CLI prints it as ``error: <message>`` and
+    exits with status 2.
+    """
+
+    def __init__(self, fault: str, *, path: str | Path | None = None, run: str | None = None,
+                 where: str | None = None, hint: str | None = None):
+        self.fault = fault
+        self.path = None if path is None else str(path)
+        self.run = run
+        self.where = where
+        self.hint = hint
+        super().__init__(self.format())
+
+    def format(self) -> str:
+        """Return the one-line message: ``file [run r] [where]: fault (hint)``."""
+        head = []
+        if self.path:
+            head.append(self.path)
+        if self.run:
+            head.append(f"run {self.run}")
+        if self.where:
+            head.append(self.where)
+        msg = (": ".join([", ".join(head), self.fault]) if head else self.fault)
+        if self.hint:
+            msg += f" ({self.hint})"
+        return " ".join(msg.split())
+
+
+class ContractError(WorkbenchError):
+    """A file or folder breaks the data contract (manifest, columns, paths, schema version)."""
+
+
+class DataError(WorkbenchError):
+    """A file follows the contract's shape but its data is unusable (NaN, gaps, no frames, ...)."""
+
+
+class CampaignRefused(WorkbenchError):
+    """A campaign has one or more bad runs and was refused as a whole; ``errors`` lists each one."""
+
+    def __init__(self, campaign: str | Path, errors: list[WorkbenchError]):
+        self.errors = errors
+        runs = ", ".join(e.run or "?" for e in errors)
+        super().__init__(
+            f"{len(errors)} bad run(s): {runs}; first: {errors[0].format()}",
+            path=campaign,
+            hint="fix them or pass --skip-bad-runs to ingest the rest",
+        )
+
+
+class ModelError(WorkbenchError):
+    """A model cannot be found, loaded or applied."""
+
+
+class StageError(WorkbenchError):
+    """A pipeline stage failed; its previous outputs are left as they were."""

@@ -1,0 +1,105 @@
+"""Where things live: the project root, its dataset folders, pipeline parameters and the MLflow store.
+
+The project root is the nearest folder upwards from the working directory that holds
+``dvc.yaml`` or ``pyproject.toml`` (override with ``WORKBENCH_HOME``). MLflow defaults to the
+project's own sqlite store ``mlflow.db`` with artifacts in ``mlartifacts/``; a tracking URI
+given on the command line or in ``MLFLOW_TRACKING_URI`` (a shared server) takes precedence.
+"""
+
+from __future__ import annotations
+
+import os
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+from workbench.errors import ContractError
+
+
+def project_root(start: str | Path | None = None) -> Path:
+    """The workbench project folder."""
+    env = os.environ.get("WORKBENCH_HOME")
+    if env:
+        return Path(env).resolve()
+    here = Path(start or Path.cwd()).resolve()
+    for p in (here, *here.parents):
+        if (p / "dvc.yaml").exists() or (p / "pyproject.toml").exists():
+            return p
+    return here
+
+
+def datasets_dir(root: Path | None = None) -> Path:
+    """``<root>/datasets``."""
+    return (root or project_root()) / "datasets"
+
+
+def mlflow_tracking_uri(explicit: str | None = None, root: Path | None = None) -> str:
+    """The tracking URI: explicit, else ``MLFLOW_TRACKING_URI``, else the project's sqlite store."""
+    if explicit:
+        return explicit
+    env = os.environ.get("MLFLOW_TRACKING_URI")
+    if env:
+        return env
+    return f"sqlite:///{(root or project_root()) / 'mlflow.db'}"
+
+
+def mlflow_artifact_root(root: Path | None = None) -> str:
+    """Default artifact location for experiments the workbench creates in a local store."""
+    return ((root or project_root()) / "mlartifacts").as_uri()
+
+
+def setup_mlflow(tracking_uri: str | None = None, experiment: str | None = None) -> str:
+    """Point MLflow at the store and (optionally) select/create an experiment; returns the URI.
+
+    Experiments created in the local sqlite store keep their artifacts in ``mlartifacts/``.
+    """
+    import mlflow
+
+    uri = mlflow_tracking_uri(tracking_uri)
+    mlflow.set_tracking_uri(uri)
+    if experiment:
+        if mlflow.get_experiment_by_name(experiment) is None:
+            kwargs = {}
+            if uri.startswith("sqlite:"):
+                kwargs["artifact_location"] = mlflow_artifact_root()
+            try:
+                mlflow.create_experiment(experiment, **kwargs)
+            except Exception:  # another process created it first
+                pass
+        mlflow.set_experiment(experiment)
+    return uri
+
+
+@lru_cache(maxsize=32)
+def _load_yaml(path: str, mtime: float) -> dict:
+    import yaml
+
+    with open(path, encoding="utf-8") as fh:
+        return yaml.safe_load(fh) or {}
+
+
+def load_params(path: str | Path, section: str | None = None) -> Any:
+    """Load a pipeline parameter file (YAML), optionally one top-level section of it."""
+    p = Path(path)
+    if not p.is_absolute() and not p.exists():
+        p = project_root() / p
+    if not p.is_file():
+        raise ContractError("parameter file not found", path=p)
+    doc = _load_yaml(str(p), p.stat().st_mtime)
+    if section is None:
+        return doc
+    if section not in doc:
+        raise ContractError(f"no section '{section}' in parameter file", path=p)
+    return doc[section]
+
+
+def git_commit(root: Path | None = None) -> str:
+    """Current git commit of the project (``unknown`` outside a repository)."""
+    import subprocess
+
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root or project_root(), capture_output=True,
+                             text=True, timeout=5)
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
