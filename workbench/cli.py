@@ -21,6 +21,7 @@ VERB_MODULES = (
     "campaign",
     "acquire",
     "ingest",
+    "interpolate",
     "fit_drag",
     "simulate",
     "train",

@@ -58,7 +58,9 @@ class LegMotion:
 
     def rows(self, idx) -> "LegMotion":
         """A sub-batch."""
-        pick = (lambda x: None if x is None else x[idx])
+        def pick(x):
+            return None if x is None else x[idx]
+
         return LegMotion(self.dt_s, pick(self.theta_h_deg), pick(self.theta_k_deg), pick(self.omega_h_dps),
                          pick(self.omega_k_dps), pick(self.flow_speed_mps), pick(self.alpha_h_dps2),
                          pick(self.alpha_k_dps2))
@@ -101,3 +103,49 @@ class JointSinusoid:
         th, tk, wh, wk, ah, ak = self.evaluate(t_s)
         dt = float(t_s[1] - t_s[0]) if len(t_s) > 1 else 1.0
         return LegMotion.from_arrays(dt, th, tk, wh, wk, np.full_like(th, flow_speed_mps), ah, ak)
+
+
+@dataclass(frozen=True)
+class RunMotion:
+    """One run of a processed tunnel dataset as model input plus the measured wrench."""
+
+    campaign_id: str
+    run_id: str
+    flow_speed_mps: float
+    params: Mapping[str, float]
+    interpolated: bool
+    time_s: np.ndarray
+    motion: LegMotion
+    #: measured wrench (T, 6), contract channel order
+    wrench: np.ndarray
+
+
+def runs_from_frame(frame, params: tuple[str, ...] | None = None) -> list[RunMotion]:
+    """Split a processed tunnel frame (contract section 3) into runs, in first-appearance order.
+
+    ``dt_s`` of each run is the median tick interval of its ``time_s``.
+    """
+    import polars as pl
+
+    from workbench.contract.columns import TUNNEL_MOTION_PARAMS, WRENCH_CHANNELS
+
+    params = params or tuple(p for p in TUNNEL_MOTION_PARAMS if p in frame.columns)
+    keys = ["campaign_id", "run_id"] if "campaign_id" in frame.columns else ["run_id"]
+    out: list[RunMotion] = []
+    for key, g in frame.group_by(keys, maintain_order=True):
+        g = g.sort("time_s")
+        t = g["time_s"].to_numpy()
+        dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+        motion = LegMotion.from_arrays(dt, g["theta_h_deg"].to_numpy(), g["theta_k_deg"].to_numpy(),
+                                       g["omega_h_dps"].to_numpy(), g["omega_k_dps"].to_numpy(),
+                                       g["flow_speed_mps"].to_numpy())
+        wrench = g.select(list(WRENCH_CHANNELS)).to_numpy()
+        interp = bool(g["interpolated"][0]) if "interpolated" in g.columns else False
+        out.append(RunMotion(
+            campaign_id=str(key[0]) if len(keys) == 2 else "",
+            run_id=str(key[-1]), flow_speed_mps=float(g["flow_speed_mps"][0]),
+            params={p: float(g[p][0]) for p in params}, interpolated=interp, time_s=t,
+            motion=motion, wrench=wrench,
+        ))
+    del pl
+    return out
