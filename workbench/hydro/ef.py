@@ -81,6 +81,29 @@ class EmpiricalFormula(LegForceModel):
         f_n, st = self.normal_force(motion)
         return web_normal_force_to_wrench(f_n, st, self.geometry)
 
+    def flow_provider(self, motion: LegMotion):
+        """``flow (B, T) -> wrench (B, T, 6)`` for this joint motion, the kinematics computed once.
+
+        Same numbers as :meth:`wrench` with ``flow_speed_mps`` replaced; the full-body simulator
+        calls it once per fixed-point iteration on the flow history.
+        """
+        p = self.params
+        ah, ak = motion.accelerations_dps2()
+        st = leg_state(np.radians(motion.theta_h_deg), np.radians(motion.theta_k_deg),
+                       np.radians(motion.omega_h_dps), np.radians(motion.omega_k_dps),
+                       np.radians(ah), np.radians(ak), self.geometry)
+        inertial = -(p.added_mass_kg + p.m_web_kg) * np.einsum("...i,...i->...", st.q_acc, st.normal)
+        qv_n = np.einsum("...i,...i->...", st.q_vel, st.normal)
+        n_x = st.normal[..., 0]
+        unit = web_normal_force_to_wrench(np.ones_like(n_x), st, self.geometry)
+        k = 0.5 * p.rho_kgpm3 * p.area_m2 * p.c_r
+
+        def wrench(flow_speed_mps: np.ndarray) -> np.ndarray:
+            v_n = -np.asarray(flow_speed_mps, float) * n_x - qv_n
+            return (inertial + k * np.abs(v_n) * v_n)[..., None] * unit
+
+        return wrench
+
     def describe(self) -> dict:
         """EF constants."""
         return {"name": self.name, **asdict(self.params), "added_mass_kg": self.params.added_mass_kg}

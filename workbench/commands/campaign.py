@@ -1,0 +1,136 @@
+"""``workbench campaign validate|add|list``: check a campaign folder, register it for DVC, list them."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from workbench.commands._help import add_verb
+
+
+def register(sub) -> None:
+    """Add the ``campaign`` verb with its three actions."""
+    p = add_verb(
+        sub, "campaign", help="validate, register (DVC) and list tunnel / towing-tank campaigns",
+        description="Work with raw campaign folders (data contract section 1). 'validate' lists every contract "
+        "violation (manifest fields, file columns, lines, trigger edges) and exits non-zero if there is any. "
+        "'add' validates, registers the campaign in pipelines/campaigns.yaml so `dvc repro` ingests it, and "
+        "tracks its raw folder with `dvc add` (folders a pipeline stage produces are already tracked). "
+        "'list' shows the registered campaigns. Walk-through: docs/campaigns.md.",
+        examples="""\
+  workbench campaign validate datasets/raw/tunnel-2025-03
+  workbench campaign add datasets/raw/tunnel-2025-03     # then: git add ...; dvc repro
+  workbench campaign list
+""")
+    actions = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    v = actions.add_parser("validate", help="list every contract violation of a campaign folder")
+    v.add_argument("campaign", type=Path)
+    v.set_defaults(func=run_validate)
+    a = actions.add_parser("add", help="validate, register in pipelines/campaigns.yaml, track with DVC")
+    a.add_argument("campaign", type=Path)
+    a.add_argument("--no-dvc", action="store_true", help="register only; do not run `dvc add`")
+    a.set_defaults(func=run_add)
+    ls = actions.add_parser("list", help="registered campaigns with facility, runs and status")
+    ls.set_defaults(func=run_list)
+
+
+def _validate(folder: Path):
+    from workbench.commands.ingest import PARAMS_FILE, load_section
+    from workbench.console import info
+    from workbench.ingest.params import IngestParams
+    from workbench.ingest.validate import validate_campaign
+
+    values = load_section(None, "ingest", PARAMS_FILE)
+    values.pop("workers", None)
+    result = validate_campaign(folder, IngestParams.from_mapping(values))
+    for e in result.errors:
+        print(f"error: {e.format()}", file=sys.stderr)
+    for w in result.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    if result.errors:
+        info(f"{folder}: {len(result.errors)} violation(s)"
+             + (f" in {len(result.bad_runs)} run(s): {', '.join(result.bad_runs)}" if result.bad_runs else ""))
+    else:
+        camp = result.campaign
+        info(f"{folder}: valid ({camp.facility}, {len(camp.runs)} runs checked)")
+    return result
+
+
+def run_validate(args) -> int:
+    """Print every violation; exit status 2 if there is any."""
+    return 0 if _validate(args.campaign).ok else 2
+
+
+def run_add(args) -> int:
+    """Validate, register, track."""
+    from workbench.console import info
+    from workbench.errors import ContractError
+    from workbench.ingest import registry
+    from workbench.project import datasets_dir, project_root
+
+    result = _validate(args.campaign)
+    if not result.ok:
+        info("not added: fix the violations above and run `workbench campaign add` again")
+        return 2
+    camp = result.campaign
+    root = project_root()
+    raw = (datasets_dir(root) / "raw").resolve()
+    folder = args.campaign.resolve()
+    if folder.parent != raw:
+        raise ContractError(f"campaign folder must sit in {raw}", path=args.campaign,
+                            hint=f"copy it to datasets/raw/{camp.id} and add that")
+    before = registry.load_registry(root)
+    added = registry.register(root, camp)
+    info(f"registered {camp.id} in {registry.registry_path(root)}" if added
+         else f"{camp.id} was already registered in {registry.registry_path(root)}")
+    track = registry.tracking(root, folder)
+    if track.kind == "stage":
+        info(f"not running dvc add: {folder.name} is the {track.detail} (DVC already tracks it)")
+    elif track.kind == "added":
+        info(f"already tracked by DVC ({track.detail}); run `dvc add` yourself after changing raw files")
+    elif args.no_dvc:
+        info("not tracked by DVC (--no-dvc)")
+    else:
+        try:
+            registry.dvc_add(root, folder)
+        except Exception:
+            if added:
+                registry.save_registry(root, before)
+            raise
+        rel = folder.relative_to(root.resolve())
+        info(f"tracked with DVC: {rel}.dvc; commit it: git add {rel}.dvc {rel.parent}/.gitignore "
+             f"{registry.REGISTRY}")
+    info("next: dvc repro (ingests every registered campaign)")
+    return 0
+
+
+def run_list(args) -> int:
+    """Table of registered campaigns."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from workbench.contract.campaign import check_manifest
+    from workbench.ingest import registry
+    from workbench.project import datasets_dir, project_root
+
+    root = project_root()
+    reg = registry.load_registry(root)
+    table = Table(title=f"campaigns registered in {registry.REGISTRY}", title_justify="left")
+    for col in ("campaign", "facility", "runs", "status", "DVC", "processed"):
+        table.add_column(col)
+    for key, ids in reg.items():
+        for cid in ids:
+            folder = datasets_dir(root) / "raw" / cid
+            processed = datasets_dir(root) / "processed" / f"{cid}.parquet"
+            if not folder.is_dir():
+                table.add_row(cid, key, "", "[yellow]folder missing (dvc pull / dvc repro)[/yellow]", "",
+                              "yes" if processed.is_file() else "no")
+                continue
+            camp, errors = check_manifest(folder)
+            status = "ok" if not errors else f"[red]{len(errors)} manifest violation(s)[/red]"
+            track = registry.tracking(root, folder)
+            table.add_row(cid, camp.facility if camp else key, str(len(camp.runs)) if camp else "?", status,
+                          {"stage": "stage output", "added": "dvc add", "untracked": "[yellow]untracked[/yellow]"}
+                          [track.kind], "yes" if processed.is_file() else "no")
+    Console(file=sys.stdout).print(table)
+    return 0

@@ -1,0 +1,161 @@
+"""``workbench evaluate``: EF vs the registered FED-LSTM on the held-out test parameter sets."""
+
+from __future__ import annotations
+
+from workbench.commands._help import add_verb
+
+EXAMPLES = """\
+  # the demo stage: metrics (contract section 5) and the paper's figures
+  workbench evaluate --data datasets/processed/demo-tunnel.parquet \\
+      --split datasets/models/fed-lstm/split.json \\
+      --out datasets/metrics/leg_models.json --figures datasets/reports/leg_models
+
+  # another model than the champion: a registry alias, a version, or a model folder
+  workbench evaluate --data d.parquet --split s.json --out m.json --model models:/fed-lstm@tuned
+  workbench evaluate --data d.parquet --split s.json --out m.json --model datasets/models/fed-lstm
+
+  # add more models to the comparison (any load_leg_model spec)
+  workbench evaluate --data d.parquet --split s.json --out m.json --also gru=models:/fed-lstm/4
+"""
+
+
+def register(sub) -> None:
+    """Add the ``evaluate`` verb."""
+    p = add_verb(sub, "evaluate", help="score EF and the FED-LSTM on held-out parameter sets (metrics, figures)",
+                 description="Run the EF and the learned model through the leg force model interface on the "
+                             "measured runs of the test parameter sets named by the split file that training "
+                             "wrote, and write MSE and R^2 per channel, per flow speed and per parameter set to a "
+                             "JSON metrics file (contract section 5). With --figures, also the paper's prediction "
+                             "curves (Fig. 4) and the MSE box plot by flow speed (Fig. 5) as PNG. Logged to MLflow.",
+                 examples=EXAMPLES)
+    p.add_argument("--data", nargs="+", required=True, metavar="PARQUET", help="processed tunnel Parquet file(s)")
+    p.add_argument("--split", required=True, help="split.json written by workbench train (model folder)")
+    p.add_argument("--out", required=True, help="metrics JSON to write, e.g. datasets/metrics/leg_models.json")
+    p.add_argument("--figures", metavar="DIR", help="write the PNG figures here")
+    p.add_argument("--model", help="learned model: lstm (registry champion), models:/NAME@ALIAS, models:/NAME/V "
+                                   "or a model folder (default: the file's evaluate.model)")
+    p.add_argument("--also", action="append", default=[], metavar="NAME=SPEC", help="another model to score")
+    p.add_argument("--config", default="pipelines/learn.yaml", help="learning parameter file (default: %(default)s)")
+    p.add_argument("--tracking-uri", help="MLflow tracking URI (default: MLFLOW_TRACKING_URI, else the project's)")
+    p.add_argument("--no-mlflow", action="store_true", help="do not log the evaluation to MLflow")
+    p.add_argument("--dvc-stage", help="dvc_stage tag of the MLflow run (default: DVC_STAGE, else 'manual')")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Evaluate, write the metrics file and figures, log them."""
+    import os
+
+    from workbench.console import info
+    from workbench.learn.config import load_section
+
+    if args.tracking_uri:
+        os.environ["MLFLOW_TRACKING_URI"] = args.tracking_uri
+    opts = load_section(args.config, "evaluate")
+    lines = evaluate_to_files(data=args.data, split_path=args.split, out=args.out, figures=args.figures,
+                              model=args.model or opts.get("model", "lstm"), also=args.also, options=opts,
+                              mlflow_log=not args.no_mlflow, dvc_stage=args.dvc_stage)
+    for line in lines:
+        info(line)
+    return 0
+
+
+def load_model_spec(spec: str):
+    """A model folder path, or any ``load_leg_model`` spec (``lstm``, ``ef``, ``models:/...``)."""
+    from pathlib import Path
+
+    from workbench.hydro.legmodel import load_leg_model
+
+    if Path(spec).is_dir():
+        from workbench.learn.registry import load_folder
+
+        return load_folder(spec, model_uri=str(spec))
+    return load_leg_model(spec)
+
+
+def evaluate_to_files(*, data, split_path, out, figures, model, also, options, mlflow_log=True,
+                      dvc_stage=None) -> list[str]:
+    """Load data, split and models; score; write the metrics JSON and figures atomically; log to MLflow."""
+    import json
+    from pathlib import Path
+
+    from workbench.atomic import atomic_path, write_json
+    from workbench.errors import ContractError
+    from workbench.hydro.legmodel import load_leg_model
+    from workbench.learn.evaluate import evaluate_models, prediction_figures
+    from workbench.learn.metrics import mse_ratios
+    from workbench.learn.split import ParameterSplit
+    from workbench.learn.windows import read_table
+
+    sp = Path(split_path)
+    if not sp.is_file():
+        raise ContractError("split file not found", path=sp, hint="workbench train writes <model folder>/split.json")
+    try:
+        split = ParameterSplit.from_dict(json.loads(sp.read_text(encoding="utf-8")), str(sp))
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise ContractError(f"not a split record ({type(exc).__name__})", path=sp) from exc
+    table = read_table(data)
+    models = {"ef": load_leg_model("ef"), "lstm": load_model_spec(model)}
+    for item in also:
+        name, _, spec = item.partition("=")
+        if not spec:
+            raise ContractError(f"--also {item!r} is not NAME=SPEC")
+        models[name] = load_model_spec(spec)
+    metrics, result = evaluate_models(table, split, models)
+    write_json(out, metrics)
+    lines = [f"wrote {out}: {metrics['lstm']['n_runs']} held-out runs, {metrics['lstm']['n_ticks']} ticks per model "
+             f"(first {result['skip']} ticks of each run skipped for all models)"]
+    ratios = mse_ratios(metrics)
+    for s, r in ratios.items():
+        r2 = metrics["ef"]["r2_by_flow_speed"][s]
+        lines.append(f"  flow {s} m/s: MSE LSTM/EF " + "  ".join(f"{c} {v:.2f}" for c, v in r.items()) +
+                     f"   EF R^2 fy {r2['fy_n']:.2f} fz {r2['fz_n']:.2f}")
+    lines.append("  all speeds: EF R^2 " + "  ".join(f"{c} {metrics['ef']['r2'][c]:.2f}" for c in ("fy_n", "fz_n",
+                                                                                                    "tx_nm")))
+    written = []
+    if figures:
+        from workbench.learn.figures import mse_boxplot
+
+        figs = prediction_figures(table, result, metrics, options.get("figure_sets", []),
+                                  options.get("figure_flow_speed_mps"), float(options.get("figure_cycles", 2)))
+        names = [f"prediction_{chr(ord('a') + i)}.png" for i in range(len(figs))]
+        figs.append(mse_boxplot(metrics, options.get("boxplot_channels", ("fy_n", "fz_n", "tx_nm"))))
+        names.append("mse_boxplot.png")
+        folder = Path(figures)
+        for fig, name in zip(figs, names, strict=False):
+            with atomic_path(folder / name, suffix=".png") as tmp:
+                fig.savefig(tmp, dpi=110, format="png")
+            written.append(folder / name)
+        lines.append(f"figures: {', '.join(str(p) for p in written)}")
+    if mlflow_log:
+        lines.append(_log_evaluation(metrics, ratios, models["lstm"], table, out, written, options, dvc_stage))
+    return lines
+
+
+def _log_evaluation(metrics, ratios, lstm, table, out, figures, options, dvc_stage) -> str:
+    import mlflow
+
+    from workbench.learn.tracking import run_tags, setup
+
+    setup(None, options.get("experiment", "fed-lstm"))
+    d = lstm.describe()
+    tags = run_tags(kind="evaluate", campaigns=table.campaigns(), variant=d.get("variant"), dvc_stage=dvc_stage,
+                    model_uri=d.get("model_uri"), model_run_id=d.get("run_id"))
+    flat = {}
+    for name, m in metrics.items():
+        for c, v in m["mse"].items():
+            flat[f"{name}_mse_{c}"] = v
+        for c, v in m["r2"].items():
+            flat[f"{name}_r2_{c}"] = v
+        for s, chans in m["mse_by_flow_speed"].items():
+            for c, v in chans.items():
+                flat[f"{name}_mse_{s}_{c}"] = v
+    for s, chans in ratios.items():
+        for c, v in chans.items():
+            flat[f"ratio_lstm_ef_mse_{s}_{c}"] = v
+    with mlflow.start_run(run_name=f"evaluate {'+'.join(table.campaigns())}", tags=tags) as run:
+        mlflow.log_metrics({k: float(v) for k, v in flat.items() if v == v})
+        mlflow.log_artifact(str(out))
+        for f in figures:
+            mlflow.log_artifact(str(f), artifact_path="figures")
+    return f"MLflow: evaluate run {run.info.run_id} in experiment {options.get('experiment', 'fed-lstm')}"

@@ -1,0 +1,82 @@
+"""``workbench score-trials``: track the robot in open-water trial videos and score each trial."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from workbench.commands._help import add_verb
+
+
+def register(sub) -> None:
+    """Add the ``score-trials`` verb."""
+    p = add_verb(
+        sub, "score-trials", help="score open-water trial videos (time, MAE, radius) and compare models",
+        description="Read a trials folder (data contract section 2), find the robot's two coloured markers in "
+        "every frame, map them onto the water plane through the reference points, and score each trial in "
+        "its own frame: straight runs by time to 2 m and MAE(X) at the 0.25 m stations, turns by time to "
+        "360 degrees and the fitted circle's radius. Writes scores.csv, summary.json (statistics per model and "
+        "task, relative improvements of one model over the other, failed trials), comparison.md (a Table "
+        "IV-style table), trajectories/*.parquet, plots/*.png and overlays/*.mp4. A trial that cannot be "
+        "scored is listed with its error and the others are still scored; the exit status is 0 when at "
+        "least one trial was scored (2 with --strict if any failed, and always 2 when none could be).",
+        examples="""\
+  workbench score-trials datasets/raw/demo-pool --out datasets/scores/demo-pool
+  workbench score-trials datasets/raw/pool-2025-04 --out /tmp/scores --trial lstm-straight-1 --no-plots
+  workbench score-trials datasets/raw/pool-2025-04 --out /tmp/scores --baseline EF --workers 1
+  workbench score-trials datasets/raw/pool-2025-04 --out /tmp/scores --strict   # CI: any bad trial fails
+""")
+    p.add_argument("trials_dir", type=Path, help="trials folder with trials.toml and videos/")
+    p.add_argument("--out", type=Path, required=True, help="output folder (replaced atomically)")
+    p.add_argument("--params", type=Path, default=None,
+                   help="YAML with a 'scoring' section (default: pipelines/trials.yaml when it exists)")
+    p.add_argument("--trial", action="append", default=None, metavar="ID", help="score only this trial (repeat)")
+    p.add_argument("--baseline", default=None, help="model the others are compared against (default: EF)")
+    p.add_argument("--workers", type=int, default=None, help="trials scored in parallel (processes)")
+    p.add_argument("--overlay", dest="overlay", action="store_true", default=None,
+                   help="write overlay videos for checking the tracking (default from params)")
+    p.add_argument("--no-overlay", dest="overlay", action="store_false")
+    p.add_argument("--no-plots", dest="plots", action="store_false", default=None)
+    p.add_argument("--strict", action="store_true", help="exit with status 2 if any trial failed")
+    p.set_defaults(func=run)
+
+
+def load_scoring_params(path: Path | None):
+    """The ``scoring`` section of the given file, or of pipelines/trials.yaml, or the defaults."""
+    from workbench.project import load_params, project_root
+    from workbench.trials.params import ScoringParams
+
+    if path is None:
+        default = project_root() / "pipelines" / "trials.yaml"
+        if not default.is_file():
+            return ScoringParams()
+        path = default
+    doc = load_params(path)
+    return ScoringParams.from_mapping(doc.get("scoring") if isinstance(doc, dict) else None, source=str(path))
+
+
+def run(args) -> int:
+    """Score, write the outputs, report failures."""
+    from workbench.console import info
+    from workbench.errors import DataError
+    from workbench.trials.outputs import run_scoring
+
+    params = load_scoring_params(args.params).replace(workers=args.workers, overlay=args.overlay,
+                                                      plots=args.plots, baseline=args.baseline)
+    result, summary = run_scoring(args.trials_dir, args.out, params, trial_ids=args.trial)
+    info(f"scored {summary['n_scored']} of {summary['n_trials']} trials -> {args.out / 'scores.csv'}")
+    for f in summary["failed"]:
+        info(f"FAILED {f['trial_id']}: {f['error']}")
+    for w in summary["warnings"]:
+        info(f"warning {w['trial_id']}: {w['note']}")
+    comp = summary["comparison"]
+    for model, tasks in comp.get("models", {}).items():
+        for task, entry in tasks.items():
+            parts = [f"{name} {100 * v['improvement']:+.1f}%" for name, v in entry["best"].items()
+                     if name != "solution" and v.get("improvement") is not None]
+            if parts:
+                info(f"{model} vs {comp['baseline']}, best {task}: " + ", ".join(parts))
+    if args.strict and summary["failed"]:
+        ids = ", ".join(f["trial_id"] for f in summary["failed"])
+        raise DataError(f"{summary['n_failed']} trial(s) failed: {ids}; first: {summary['failed'][0]['error']}",
+                        path=args.trials_dir / "trials.toml")
+    return 0

@@ -1,0 +1,159 @@
+"""``workbench simulate``: swim gaits in the full-body simulator; trajectory Parquet, paths plot, summary."""
+
+from __future__ import annotations
+
+from workbench.commands._help import add_verb
+
+_GAIT_KEYS = ("theta_h_min_deg", "theta_k_max_deg", "frequency_hz", "alpha_rad")
+
+
+def register(sub) -> None:
+    """Add the ``simulate`` verb."""
+    p = add_verb(
+        sub, "simulate", help="simulate gaits with the full-body model (any leg force model)",
+        description="Swim one or more gaits from rest in the full-body simulator (four legs, HAA "
+        "rotation, body drag, planar motion; docs/hydro.md). Gaits come from a gaits JSON file "
+        "(data contract section 5) and/or --gait on the command line (contract parameter names; "
+        "alpha_rad as four comma-separated phases LF,RF,LH,RH, or one for all legs). Writes "
+        "OUT/trajectory.parquet (one row per gait and tick: pose, body velocities, total, body "
+        "and per-leg wrenches), OUT/paths.png and OUT/summary.json. Robot constants and "
+        "simulation settings: pipelines/robot.yaml.",
+        examples="""\
+  workbench simulate --gait theta_h_min_deg=-20 theta_k_max_deg=-50 frequency_hz=0.5 alpha_rad=0 --out /tmp/sim
+  workbench simulate --gait theta_h_min_deg=10 theta_k_max_deg=-20 frequency_hz=0.6 alpha_rad=0,3.14,0,3.14 \\
+      --duration 30 --out /tmp/sim
+  workbench simulate --gaits datasets/gaits/straight-ef.json --rank 1 --rank 2 --out /tmp/straight
+  workbench simulate --gaits datasets/gaits/turn-lstm.json --model lstm --out /tmp/turn-lstm
+  workbench simulate --gaits datasets/gaits/straight-ef.json --drag datasets/drag/demo-towing/drag.json --out /tmp/s
+""")
+    p.add_argument("--gaits", metavar="JSON", help="gaits file (contract section 5)")
+    p.add_argument("--rank", type=int, action="append", metavar="N",
+                   help="only the solution(s) of this rank from --gaits (repeatable; default: all)")
+    p.add_argument("--gait", nargs="+", action="append", metavar="KEY=VALUE",
+                   help="a gait on the command line (repeat --gait for more)")
+    p.add_argument("--model", default="ef", help="leg force model spec (default: ef; e.g. lstm, models:/name@alias)")
+    p.add_argument("--robot", default="pipelines/robot.yaml", metavar="YAML",
+                   help="robot constants and simulation settings (default: pipelines/robot.yaml)")
+    p.add_argument("--drag", default=None, metavar="JSON", help="body drag from `workbench fit-drag` (drag.json)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="simulated time (s)")
+    p.add_argument("--dt", type=float, default=None, metavar="S", help="time step (s)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.set_defaults(func=run)
+
+
+def parse_gait(tokens: list[str]) -> dict:
+    """``KEY=VALUE`` tokens -> a gait ``params`` dict (contract names)."""
+    from workbench.errors import ContractError
+
+    params: dict = {}
+    for tok in tokens:
+        key, sep, value = tok.partition("=")
+        if not sep or key not in _GAIT_KEYS:
+            raise ContractError(f"--gait expects KEY=VALUE with KEY in {list(_GAIT_KEYS)}, got {tok!r}")
+        try:
+            nums = [float(v) for v in value.split(",")]
+        except ValueError:
+            raise ContractError(f"--gait {key}: {value!r} is not a number (or list of numbers)") from None
+        if key == "alpha_rad":
+            if len(nums) not in (1, 4):
+                raise ContractError("--gait alpha_rad takes one phase or four (LF,RF,LH,RH)")
+            params[key] = nums * 4 if len(nums) == 1 else nums
+        elif len(nums) != 1:
+            raise ContractError(f"--gait {key} takes one number")
+        else:
+            params[key] = nums[0]
+    missing = [k for k in _GAIT_KEYS if k not in params]
+    if missing:
+        raise ContractError(f"--gait lacks {missing}")
+    return params
+
+
+def read_gaits_file(path, ranks: list[int] | None) -> list[tuple[str, dict]]:
+    """(label, params) of the solutions in a gaits file (contract section 5), optionally some ranks."""
+    import json
+    from pathlib import Path
+
+    from workbench.errors import ContractError
+
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ContractError("gaits file not found", path=p) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ContractError(f"not valid JSON: {exc}", path=p) from None
+    sols = doc.get("solutions") if isinstance(doc, dict) else None
+    if not isinstance(sols, list) or not sols:
+        raise ContractError("no 'solutions' list", path=p)
+    out = []
+    for i, sol in enumerate(sols):
+        params = sol.get("params") if isinstance(sol, dict) else None
+        if not isinstance(params, dict) or any(k not in params for k in _GAIT_KEYS):
+            raise ContractError(f"solution #{i + 1} lacks params {list(_GAIT_KEYS)}", path=p)
+        rank = sol.get("rank", i + 1)
+        if ranks and rank not in ranks:
+            continue
+        alpha = params["alpha_rad"]
+        if isinstance(alpha, list) and len(alpha) != 4:
+            raise ContractError(f"solution rank {rank}: alpha_rad needs four phases LF,RF,LH,RH", path=p)
+        out.append((f"{doc.get('task', 'gait')}-{doc.get('model', '?')} #{rank}", params))
+    if not out:
+        raise ContractError(f"no solution with rank {ranks}", path=p)
+    return out
+
+
+def run(args) -> int:
+    """Load gaits, robot and leg model, simulate the batch, write the outputs."""
+    from pathlib import Path
+
+    from workbench.atomic import atomic_path, write_bytes, write_json
+    from workbench.console import info
+    from workbench.errors import ContractError
+    from workbench.hydro.legmodel import load_leg_model
+    from workbench.hydro.robot import load_robot
+    from workbench.hydro.sim_report import paths_figure_png, summarise
+    from workbench.hydro.simulator import GaitBatch, simulate, simulation_settings
+    from workbench.project import load_params
+
+    gaits: list[tuple[str, dict]] = []
+    if args.gaits:
+        gaits += read_gaits_file(args.gaits, args.rank)
+    for i, tokens in enumerate(args.gait or []):
+        gaits.append((f"gait {i + 1}", parse_gait(tokens)))
+    if not gaits:
+        raise ContractError("no gait given", hint="use --gaits FILE and/or --gait KEY=VALUE ...")
+    try:
+        batch = GaitBatch.from_params([p for _, p in gaits])
+    except ValueError as exc:
+        raise ContractError(str(exc), path=args.gaits) from None
+    robot = load_robot(args.robot, drag_json=args.drag)
+    try:
+        settings = simulation_settings(load_params(args.robot).get("simulation"))
+    except ValueError as exc:
+        raise ContractError(str(exc), path=args.robot) from None
+    if args.duration is not None:
+        settings["duration_s"] = args.duration
+    if args.dt is not None:
+        settings["dt_s"] = args.dt
+    model = load_leg_model(args.model)
+    labels = [label for label, _ in gaits]
+    info(f"simulating {len(batch)} gait(s) with leg model {args.model!r} for {settings.get('duration_s', 20.0):g} s")
+    traj = simulate(batch, model, robot, **settings,
+                    on_iteration=lambda k, res: info(f"  fixed-point iteration {k}: largest flow change "
+                                                     f"{res.max():.2e} m/s"))
+    if not traj.converged.all():
+        info(f"warning: {int((~traj.converged).sum())} gait(s) did not converge in {traj.iterations} iterations")
+    frame = traj.to_frame([{"label": lab} for lab in labels])
+    summary = {"model": args.model, "robot": robot.describe(), "settings": settings,
+               "iterations": traj.iterations, "gaits": summarise(traj, labels)}
+    png = paths_figure_png(traj, labels)
+    out = Path(args.out)
+    with atomic_path(out / "trajectory.parquet", suffix=".parquet") as tmp:
+        frame.write_parquet(tmp)
+    write_bytes(out / "paths.png", png)
+    write_json(out / "summary.json", summary)
+    for g in summary["gaits"]:
+        info(f"{g['gait']}: end ({g['final_x_m']:+.3f}, {g['final_y_m']:+.3f}) m, yaw {g['final_yaw_deg']:+.1f} deg, "
+             f"forward speed {g['mean_forward_speed_mps']:.3f} m/s")
+    info(f"wrote {out / 'trajectory.parquet'}, paths.png, summary.json")
+    return 0

@@ -1,0 +1,184 @@
+"""The augmented model's forward pass: commanded motion -> leg -> fluid -> structure -> load cell.
+
+A :class:`Configuration` is an ordered set of active effects with their nonlinear parameters.
+:func:`build_design` evaluates it on a batch of runs as a *linear* model in the remaining
+parameters: a fixed part ``base`` (the diagnosed model on the transformed motion, plus fixed
+terms) and columns whose weighted sum is added to it. Fitting, the augmented model and the
+report all go through this one function, so what is fitted is exactly what is predicted.
+
+Order of the chain (physics first, measurement last): input effects (servo lag) -> the model
+and force terms -> the ingest's low-pass (matched) -> filters (structural resonance) -> sensor
+terms (crosstalk from the predicted true wrench, drift).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from workbench.diagnose.library import Context, Effect
+from workbench.hydro.kinematics import DEFAULT_GEOMETRY
+
+
+@dataclass(frozen=True)
+class Lowpass:
+    """The ingest's zero-phase low-pass, applied to predictions so they compare with the readings."""
+
+    cutoff_hz: float = 6.0
+    order: int = 4
+
+    def __call__(self, x: np.ndarray, dt_s: float, axis: int) -> np.ndarray:
+        """Filter ``x`` along ``axis``."""
+        from workbench.signals.filters import lowpass
+
+        return lowpass(x, 1.0 / dt_s, self.cutoff_hz, self.order, axis=axis)
+
+
+@dataclass
+class Active:
+    """An effect in a configuration, with its nonlinear parameter values."""
+
+    effect: Effect
+    nl: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        """The effect's canonical name."""
+        return self.effect.name
+
+
+STAGE_ORDER = {"input": 0, "force": 1, "filter": 2, "sensor": 3}
+
+
+@dataclass
+class Configuration:
+    """Active effects in chain order."""
+
+    actives: list[Active] = field(default_factory=list)
+
+    def with_effect(self, active: Active) -> "Configuration":
+        """A copy with one more (or a replaced) effect."""
+        rest = [a for a in self.actives if a.name != active.name]
+        return Configuration(sorted(rest + [active], key=lambda a: STAGE_ORDER[a.effect.stage]))
+
+    def without(self, name: str) -> "Configuration":
+        """A copy less one effect."""
+        return Configuration([a for a in self.actives if a.name != name])
+
+    def stage(self, stage: str) -> list[Active]:
+        """Active effects of one stage."""
+        return [a for a in self.actives if a.effect.stage == stage]
+
+    def names(self) -> list[str]:
+        """Active effect names in chain order."""
+        return [a.name for a in self.actives]
+
+    def nl_values(self) -> dict[str, float]:
+        """All nonlinear parameters as ``effect.param``."""
+        return {f"{a.name}.{k}": v for a in self.actives for k, v in a.nl.items()}
+
+    def copy(self) -> "Configuration":
+        """A copy with independent parameter dicts."""
+        return Configuration([Active(a.effect, dict(a.nl)) for a in self.actives])
+
+
+@dataclass
+class Design:
+    """A configuration on one batch, linear in its remaining parameters (all arrays (B, T, 6))."""
+
+    base: np.ndarray
+    names: list[str]
+    cols: list[np.ndarray]
+    support: list[np.ndarray]
+    local_names: list[str]
+    local: list[np.ndarray]
+
+    def predict(self, coefs: dict[str, float], local: dict[str, np.ndarray] | None = None) -> np.ndarray:
+        """base + sum coef * col (+ per-run columns with per-row coefficients ``local[name]`` (B,))."""
+        out = self.base.copy()
+        for n, c in zip(self.names, self.cols):
+            v = coefs.get(n, 0.0)
+            if v:
+                out += v * c
+        for n, c in zip(self.local_names, self.local):
+            if local and n in local:
+                out += local[n][:, None, None] * c
+        return out
+
+
+def _key(actives: list[Active]) -> tuple:
+    return tuple((a.name, tuple(sorted((k, round(float(v), 12)) for k, v in a.nl.items()))) for a in actives)
+
+
+def build_design(model, rs, config: Configuration, coefs: dict[str, float] | None = None,
+                 lowpass: Lowpass | None = None, geometry=DEFAULT_GEOMETRY,
+                 only: set[str] | None = None, cache: dict | None = None) -> Design:
+    """Evaluate ``config`` on the batch ``rs`` as base + linear columns.
+
+    ``coefs`` (qualified names ``effect.param``) are the current values of the force-stage
+    coefficients; sensor terms that read the predicted true wrench (crosstalk) use them.
+    ``only`` restricts the linear columns kept (others are dropped, not folded in). ``cache``
+    (a dict owned by the caller, one per batch) keeps the model and force-stage results of the
+    last configurations, so a search over a filter or a sensor parameter does not redo them.
+    The ingest's low-pass is applied after the force stage; the filter stage and the sensor
+    stage are linear and time-invariant per channel, so the order does not change the result.
+    """
+    coefs = coefs or {}
+    in_key = _key(config.stage("input"))
+    f_key = (in_key, _key(config.stage("force")), None if only is None else tuple(sorted(only)))
+    hit = cache.get(("force",) + f_key) if cache is not None else None
+    if hit is None:
+        ctx = cache.get(("ctx", in_key)) if cache is not None else None
+        if ctx is None:
+            motion = rs.motion
+            for a in config.stage("input"):
+                motion = a.effect.transform_motion(motion, a.nl)
+            ctx = Context(rs, model, motion, geometry)
+        base = ctx.base.copy()
+        names, cols, sup, lnames, lcols = [], [], [], [], []
+        for a in config.stage("force"):
+            t = a.effect.force_terms(ctx, a.nl)
+            if t.fixed is not None:
+                base += t.fixed
+            for n, c, s in zip(t.names, t.cols, t.support):
+                q = f"{a.name}.{n}"
+                if only is None or q in only:
+                    names.append(q)
+                    cols.append(c)
+                    sup.append(np.asarray(s, bool))
+            for n, c in zip(t.local_names, t.local):
+                lnames.append(f"{a.name}.{n}")
+                lcols.append(c)
+        stack = np.stack([base, *cols, *lcols])
+        if lowpass is not None:
+            stack = lowpass(stack, ctx.dt_s, axis=-2)
+        hit = (ctx, stack, names, sup, lnames)
+        if cache is not None:
+            for k in [k for k in cache if k[0] == "force"][:-1]:
+                del cache[k]
+            for k in [k for k in cache if k[0] == "ctx" and k[1] != in_key]:
+                del cache[k]
+            cache[("force",) + f_key] = hit
+            cache[("ctx", in_key)] = ctx
+    ctx, stack, names, sup, lnames = hit
+    names, sup = list(names), list(sup)
+    for a in config.stage("filter"):
+        stack = a.effect.filter_wrench(stack, ctx.dt_s, a.nl)
+    base = stack[0]
+    cols = list(stack[1:1 + len(names)])
+    lcols = list(stack[1 + len(names):])
+    prediction = base.copy()
+    for n, c in zip(names, cols):
+        v = coefs.get(n, 0.0)
+        if v:
+            prediction += v * c
+    for a in config.stage("sensor"):
+        t = a.effect.sensor_terms(ctx, a.nl, prediction)
+        for n, c, s in zip(t.names, t.cols, t.support):
+            q = f"{a.name}.{n}"
+            if only is None or q in only:
+                names.append(q)
+                cols.append(c)
+                sup.append(np.asarray(s, bool))
+    return Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)

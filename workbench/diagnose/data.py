@@ -1,0 +1,247 @@
+"""The diagnosis's view of a processed tunnel campaign: runs padded into batches, the held-out split, blocks.
+
+Runs are split into training and held-out runs *by their motion parameters* (every flow speed
+of a parameter set goes to the same side), from a hash of the rounded parameters, so a
+re-measured campaign splits the same way. Within each run the analysis ticks (edges trimmed,
+optionally strided) are cut into blocks of a few seconds: the units of the significance tests
+and of the autocorrelation-robust parameter covariance.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from workbench.contract.columns import TUNNEL_MOTION_PARAMS, WRENCH_CHANNELS
+from workbench.errors import DataError
+from workbench.hydro.motion import LegMotion, RunMotion, runs_from_frame
+
+
+@dataclass(frozen=True)
+class DataSettings:
+    """How runs become analysis ticks (``pipelines/diagnose.yaml`` section ``data``)."""
+
+    heldout_fraction: float = 0.3
+    #: decimals the motion parameters are rounded to before hashing (the split key)
+    split_decimals: int = 3
+    #: seconds cut from both ends of the moving part of every run (filter and lag transients)
+    edge_trim_s: float = 0.5
+    #: also fit on the pre-run rest stretch (time_s < 0) when the processed file keeps it
+    include_rest: bool = False
+    #: use every n-th analysis tick in fits (the data are low-passed far below the tick rate)
+    tick_stride: int = 2
+    #: at most this many runs (deterministic subsample, all speeds of a set together); 0 = all
+    max_runs: int = 0
+    #: runs per padded batch (memory)
+    chunk_runs: int = 48
+    #: block length for significance tests and robust covariances (s)
+    block_s: float = 2.0
+
+
+@dataclass
+class RunSet:
+    """A batch of runs padded to one length ``T`` (edge values repeated); arrays are ``(B, T, ...)``."""
+
+    run_ids: tuple[str, ...]
+    index: np.ndarray          # (B,) position of each run in the campaign's run list
+    dt_s: float
+    time_s: np.ndarray         # (B, T)
+    motion: LegMotion
+    y: np.ndarray              # (B, T, 6) measured wrench
+    valid: np.ndarray          # (B, T) real (not padding)
+    fit: np.ndarray            # (B, T) analysis ticks (moving part, trimmed)
+    rest: np.ndarray           # (B, T) pre-run rest ticks (time_s < 0)
+    flow: np.ndarray           # (B,)
+    freq: np.ndarray           # (B,) gait frequency (Hz), NaN if unknown
+    params: list[dict]
+    heldout: bool
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(B, T)."""
+        return self.time_s.shape
+
+
+@dataclass
+class Campaign:
+    """All runs of a campaign as training and held-out batches."""
+
+    campaign_id: str
+    runs: list[RunMotion]
+    heldout: np.ndarray                   # (n_runs,) bool
+    train_sets: list[RunSet]
+    heldout_sets: list[RunSet]
+    dt_s: float
+    settings: DataSettings
+    skipped: list[str] = field(default_factory=list)
+
+    @property
+    def sets(self) -> list[RunSet]:
+        """Training then held-out batches."""
+        return self.train_sets + self.heldout_sets
+
+    def run_ids(self, heldout: bool | None = None) -> list[str]:
+        """Run ids (optionally only training or held-out)."""
+        return [r.run_id for r, h in zip(self.runs, self.heldout) if heldout is None or h == heldout]
+
+
+def parameter_key(params: dict, decimals: int) -> str:
+    """The split key of a run: its rounded motion parameters (flow speed excluded)."""
+    return ";".join(f"{p}={round(float(params.get(p, 0.0)), decimals):.{decimals}f}"
+                    for p in TUNNEL_MOTION_PARAMS if p in params)
+
+
+def _unit_hash(key: str) -> float:
+    return int.from_bytes(hashlib.sha256(key.encode()).digest()[:8], "big") / 2.0**64
+
+
+def heldout_mask(runs: list[RunMotion], fraction: float, decimals: int = 3) -> np.ndarray:
+    """Held-out runs: parameter sets whose key hashes below ``fraction`` (at least one set, never all)."""
+    keys = [parameter_key(dict(r.params), decimals) if r.params else r.run_id for r in runs]
+    uniq = sorted(set(keys))
+    h = {k: _unit_hash(k) for k in uniq}
+    held = {k for k in uniq if h[k] < fraction}
+    if len(uniq) >= 2 and fraction > 0:
+        if not held:
+            held = {min(uniq, key=h.get)}
+        if len(held) == len(uniq):
+            held.discard(max(uniq, key=h.get))
+    return np.array([k in held for k in keys])
+
+
+def _subsample(runs: list[RunMotion], max_runs: int, decimals: int) -> list[RunMotion]:
+    """A deterministic subsample of whole parameter sets (by hash order) of at most ``max_runs`` runs."""
+    if not max_runs or len(runs) <= max_runs:
+        return runs
+    by_key: dict[str, list[RunMotion]] = {}
+    for r in runs:
+        by_key.setdefault(parameter_key(dict(r.params), decimals), []).append(r)
+    keep: list[RunMotion] = []
+    for key in sorted(by_key, key=lambda k: _unit_hash("sub:" + k)):
+        if len(keep) + len(by_key[key]) > max_runs and keep:
+            continue
+        keep.extend(by_key[key])
+    order = {id(r): i for i, r in enumerate(runs)}
+    return sorted(keep, key=lambda r: order[id(r)])
+
+
+def _pad(x: np.ndarray, n: int) -> np.ndarray:
+    if len(x) >= n:
+        return x[:n]
+    return np.concatenate([x, np.repeat(x[-1:], n - len(x), axis=0)], axis=0)
+
+
+def make_runset(runs: list[RunMotion], index: list[int], dt: float, settings: DataSettings, heldout: bool) -> RunSet:
+    """Pad ``runs`` to a common length and mark their analysis and rest ticks."""
+    n = max(len(r.time_s) for r in runs)
+    b = len(runs)
+    time = np.empty((b, n))
+    arrays = {k: np.empty((b, n)) for k in ("th", "tk", "wh", "wk", "u")}
+    y = np.empty((b, n, 6))
+    valid = np.zeros((b, n), bool)
+    fit = np.zeros((b, n), bool)
+    rest = np.zeros((b, n), bool)
+    for i, r in enumerate(runs):
+        m = r.motion
+        t = r.time_s
+        k = len(t)
+        time[i] = np.concatenate([t, t[-1] + dt * np.arange(1, n - k + 1)])
+        for key, arr in (("th", m.theta_h_deg), ("tk", m.theta_k_deg), ("wh", m.omega_h_dps),
+                         ("wk", m.omega_k_dps), ("u", m.flow_speed_mps)):
+            arrays[key][i] = _pad(arr[0], n)
+        y[i] = _pad(r.wrench, n)
+        valid[i, :k] = True
+        moving = t >= 0
+        t_end = t[-1]
+        ok = moving & (t >= settings.edge_trim_s) & (t <= t_end - settings.edge_trim_s)
+        if settings.include_rest:
+            ok |= (t < 0) & (t >= t[0] + settings.edge_trim_s)
+        fit[i, :k] = ok
+        rest[i, :k] = t < 0
+    motion = LegMotion.from_arrays(dt, arrays["th"], arrays["tk"], arrays["wh"], arrays["wk"], arrays["u"])
+    freq = np.array([float(r.params.get("frequency_hz", np.nan)) for r in runs])
+    return RunSet(run_ids=tuple(r.run_id for r in runs), index=np.asarray(index), dt_s=dt, time_s=time,
+                  motion=motion, y=y, valid=valid, fit=fit, rest=rest,
+                  flow=np.array([r.flow_speed_mps for r in runs]), freq=freq,
+                  params=[dict(r.params) for r in runs], heldout=heldout)
+
+
+def _chunks(idx: list[int], runs: list[RunMotion], size: int) -> list[list[int]]:
+    """Group run indices by length (little padding), at most ``size`` per group."""
+    idx = sorted(idx, key=lambda i: len(runs[i].time_s))
+    return [idx[i:i + size] for i in range(0, len(idx), max(1, size))]
+
+
+def prepare(frame, settings: DataSettings | None = None, source: str = "processed frame") -> Campaign:
+    """Split a processed tunnel frame (contract section 3, measured rows) into padded batches."""
+    settings = settings or DataSettings()
+    missing = [c for c in ("run_id", "time_s", "flow_speed_mps", "theta_h_deg", "theta_k_deg", "omega_h_dps",
+                           "omega_k_dps", *WRENCH_CHANNELS) if c not in frame.columns]
+    if missing:
+        raise DataError(f"missing column(s) {missing} (a water-tunnel processed dataset is needed)", path=source)
+    if "interpolated" in frame.columns:
+        import polars as pl
+
+        frame = frame.filter(~pl.col("interpolated"))
+    runs = [r for r in runs_from_frame(frame) if len(r.time_s) > 8]
+    skipped = []
+    good = []
+    for r in runs:
+        arrays = [r.motion.theta_h_deg, r.motion.theta_k_deg, r.motion.omega_h_dps, r.motion.omega_k_dps, r.wrench]
+        if not all(np.isfinite(a).all() for a in arrays):
+            skipped.append(r.run_id)
+            continue
+        good.append(r)
+    runs = _subsample(good, settings.max_runs, settings.split_decimals)
+    if len(runs) < 2:
+        raise DataError(f"{len(runs)} usable run(s); the diagnosis needs at least two", path=source)
+    dts = np.array([r.motion.dt_s for r in runs])
+    dt = float(np.median(dts))
+    if np.any(np.abs(dts - dt) > 0.02 * dt):
+        bad = runs[int(np.argmax(np.abs(dts - dt)))].run_id
+        raise DataError(f"tick interval differs between runs ({dts.min():.4g}-{dts.max():.4g} s)", path=source,
+                        run=bad, hint="resample the runs onto one control tick")
+    held = heldout_mask(runs, settings.heldout_fraction, settings.split_decimals)
+    train_idx = [i for i in range(len(runs)) if not held[i]]
+    held_idx = [i for i in range(len(runs)) if held[i]]
+    train_sets = [make_runset([runs[i] for i in c], c, dt, settings, False)
+                  for c in _chunks(train_idx, runs, settings.chunk_runs)]
+    held_sets = [make_runset([runs[i] for i in c], c, dt, settings, True)
+                 for c in _chunks(held_idx, runs, settings.chunk_runs)]
+    cid = runs[0].campaign_id or "campaign"
+    return Campaign(campaign_id=cid, runs=runs, heldout=held, train_sets=train_sets, heldout_sets=held_sets,
+                    dt_s=dt, settings=settings, skipped=skipped)
+
+
+@dataclass(frozen=True)
+class Blocks:
+    """Analysis ticks of a RunSet, strided and cut into blocks: gather indices into the flat (B*T) axis."""
+
+    ticks: np.ndarray      # (nb, L) flat tick indices, -1 = padding
+    run: np.ndarray        # (nb,) campaign run index
+    order: np.ndarray      # (nb,) block number within its run
+
+
+def make_blocks(rs: RunSet, stride: int, block_s: float) -> Blocks:
+    """Cut the (strided) analysis ticks of each run into consecutive blocks of about ``block_s``."""
+    b, t = rs.shape
+    length = max(4, int(round(block_s / (rs.dt_s * stride))))
+    rows, runs, order = [], [], []
+    for i in range(b):
+        idx = np.flatnonzero(rs.fit[i])[::stride]
+        if len(idx) == 0:
+            continue
+        nblk = max(1, int(round(len(idx) / length)))
+        for j, part in enumerate(np.array_split(idx, nblk)):
+            row = np.full(int(np.ceil(len(idx) / nblk)) + 1, -1)
+            row[:len(part)] = part + i * t
+            rows.append(row)
+            runs.append(rs.index[i])
+            order.append(j)
+    width = max(len(r) for r in rows) if rows else 1
+    ticks = np.full((len(rows), width), -1)
+    for k, r in enumerate(rows):
+        ticks[k, :len(r)] = r
+    return Blocks(ticks=ticks, run=np.asarray(runs, int), order=np.asarray(order, int))

@@ -1,0 +1,247 @@
+"""Candidate effects of the rig: servo, tunnel, structure and load cell (canonical names; docs/diagnose.md).
+
+These act on what the leg is commanded to do (servo lag), on the flow it meets (blockage,
+unsteadiness) or on how its load is read (resonance, crosstalk, drift). Only the servo lag is
+part of the physical leg handed to the simulator; the others belong to the tunnel and load cell.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+from workbench.contract.columns import WRENCH_CHANNELS
+from workbench.diagnose.library import ALL_CHANNELS, Context, Effect, SearchParam, Terms
+from workbench.hydro.motion import LegMotion
+
+SHORT = tuple(c.split("_")[0] for c in WRENCH_CHANNELS)  # fx, fy, fz, tx, ty, tz
+
+
+def lag_filter(x: np.ndarray, tau_s: float, dt_s: float, axis: int = -1) -> np.ndarray:
+    """First-order low-pass (time constant ``tau_s``) along ``axis``, starting at rest on the first sample.
+
+    The exact exponential update for the mid-step input, as an IIR filter (DC gain one).
+    """
+    if tau_s <= 0:
+        return np.array(x, float)
+    g = -np.expm1(-dt_s / tau_s)
+    b, a = np.array([g / 2, g / 2]), np.array([1.0, g - 1.0])
+    x = np.asarray(x, float)
+    x0 = np.take(x, [0], axis=axis)
+    zi = signal.lfilter_zi(b, a).reshape([-1 if i == (axis % x.ndim) else 1 for i in range(x.ndim)]) * x0
+    y, _ = signal.lfilter(b, a, x, axis=axis, zi=zi)
+    return y
+
+
+class ServoLag(Effect):
+    """Actual joint angles = first-order low-pass (tau_s) of the commanded angles, both joints."""
+
+    name = "servo_lag"
+    stage = "input"
+    formula = "theta = theta_cmd / (1 + tau_s s), both joints"
+    search = (SearchParam("tau_s", (0.005, 0.012, 0.02, 0.03, 0.04, 0.055, 0.075, 0.1, 0.14, 0.2), (0.0005, 0.4),
+                          log=True),)
+
+    def transform_motion(self, motion: LegMotion, nl: dict) -> LegMotion:  # noqa: D102
+        tau, dt = nl["tau_s"], motion.dt_s
+        f = (lambda a: lag_filter(a, tau, dt, axis=-1))  # noqa: E731
+        return LegMotion(dt, f(motion.theta_h_deg), f(motion.theta_k_deg), f(motion.omega_h_dps),
+                         f(motion.omega_k_dps), motion.flow_speed_mps,
+                         None if motion.alpha_h_dps2 is None else f(motion.alpha_h_dps2),
+                         None if motion.alpha_k_dps2 is None else f(motion.alpha_k_dps2))
+
+
+class TunnelBlockage(Effect):
+    """Free-stream dynamic pressure raised by (1 + epsilon): U_eff = U sqrt(1 + epsilon).
+
+    Linearised by a secant over the expected range: column = (M(U sqrt(1 + h)) - M(U)) / h with
+    h = 0.1, so the fitted ``epsilon`` is nearly exact for blockage of a few to 15 percent.
+    """
+
+    name = "tunnel_blockage"
+    physical = False
+    formula = "U_eff = U sqrt(1 + epsilon)"
+    secant = 0.1
+
+    def linear_names(self):  # noqa: D102
+        return ["epsilon"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        h = self.secant
+        col = (ctx.wrench_at_flow(float(np.sqrt(1 + h))) - ctx.base) / h
+        return Terms(["epsilon"], [col], [ALL_CHANNELS])
+
+
+class FlowUnsteadiness(Effect):
+    """U(t) = U (1 + tone_fraction sin(2 pi tone_hz t) + coloured noise of RMS rms_fraction).
+
+    The tone enters as per-run columns ``g(t) sin(2 pi f t)``, ``g(t) cos(2 pi f t)`` with
+    ``g = U dM/dU`` (its phase in each run is a nuisance fitted per run); the tone frequency is
+    proposed by a narrowband residual peak and refined by search. The noise part cannot be
+    predicted; its RMS is estimated from how the residual variance grows with g^2.
+    """
+
+    name = "flow_unsteadiness"
+    physical = False
+    formula = "U(t) = U (1 + tone_fraction sin(2 pi tone_hz t) + noise of RMS rms_fraction)"
+    search = (SearchParam("tone_hz", (), (0.05, 30.0)),)
+    needs_peak = True
+    step = 0.05
+
+    def gain(self, ctx: Context) -> np.ndarray:
+        """g = U dM/dU by a centred difference (B, T, 6)."""
+        h = self.step
+        return (ctx.wrench_at_flow(1 + h) - ctx.wrench_at_flow(1 - h)) / (2 * h)
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        g = self.gain(ctx)
+        ph = 2 * np.pi * nl["tone_hz"] * ctx.time_s
+        return Terms(local_names=["tone_sin", "tone_cos"],
+                     local=[g * np.sin(ph)[..., None], g * np.cos(ph)[..., None]])
+
+    def null_variants(self, nl: dict) -> list[dict]:  # noqa: D102
+        f = nl["tone_hz"]
+        return [{"tone_hz": f + d} for d in (-0.45, -0.3, 0.3, 0.45) if f + d > 0.05]
+
+    def canonical_params(self, coefs, nl, cov, local=None):  # noqa: D102
+        params = {"tone_hz": nl["tone_hz"], "tone_fraction": float("nan"), "rms_fraction": None}
+        se = {"tone_hz": float(np.sqrt(max(cov.get(("tone_hz", "tone_hz"), np.nan), 0)))}
+        if local:
+            a, wa = local["tone_sin"]
+            b, _ = local["tone_cos"]
+            amp = np.hypot(a, b)
+            ok = np.isfinite(amp) & (wa > 0)
+            if ok.any():
+                w = wa[ok] / wa[ok].sum()
+                params["tone_fraction"] = float(np.sum(w * amp[ok]))
+                se["tone_fraction"] = float(np.sqrt(np.sum(w * (amp[ok] - params["tone_fraction"]) ** 2)
+                                                    / max(ok.sum() - 1, 1)))
+        return params, se
+
+
+def resonance_filter(w: np.ndarray, dt_s: float, f_n_hz: float, zeta: float, axis: int = -2) -> np.ndarray:
+    """w through wn^2 / (s^2 + 2 zeta wn s + wn^2) along ``axis``, starting at rest on the first sample.
+
+    Discretised with a first-order hold (exact for piecewise-linear input), so it follows the
+    continuous mode closely up to the 6 Hz band the ingest keeps.
+    """
+    wn = 2 * np.pi * f_n_hz
+    b, a, _ = signal.cont2discrete(([wn * wn], [1.0, 2 * zeta * wn, wn * wn]), dt_s, method="foh")
+    b = np.ravel(b)
+    w = np.asarray(w, float)
+    ax = axis % w.ndim
+    x0 = np.take(w, [0], axis=ax)
+    zi = signal.lfilter_zi(b, a).reshape([-1 if i == ax else 1 for i in range(w.ndim)]) * x0
+    y, _ = signal.lfilter(b, a, w, axis=ax, zi=zi)
+    return y
+
+
+class StructuralResonance(Effect):
+    """Reading = true wrench through a 2nd-order mode wn^2 / (s^2 + 2 zeta wn s + wn^2), all channels."""
+
+    name = "structural_resonance"
+    stage = "filter"
+    physical = False
+    formula = "W_read = W wn^2 / (s^2 + 2 zeta wn s + wn^2), wn = 2 pi f_n_hz"
+    search = (SearchParam("f_n_hz", (1.5, 2.5, 3.5, 4.5, 6.0, 8.0), (0.5, 12.0)),
+              SearchParam("zeta", (0.05, 0.15, 0.4), (0.005, 1.5), log=True))
+
+    def filter_wrench(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:  # noqa: D102
+        return resonance_filter(w, dt_s, nl["f_n_hz"], nl["zeta"], axis=-2)
+
+
+class LoadcellCrosstalk(Effect):
+    """Reading = (I + X) @ true wrench, X off-diagonal; entries x_<to>_<from>.
+
+    Sources the model never excites are left out, and of two (nearly) proportional sources
+    only the larger is fitted (its entry then stands for both; see ``aliases``).
+    """
+
+    name = "loadcell_crosstalk"
+    stage = "sensor"
+    physical = False
+    prunable = True
+    formula = "W_read = (I + X) W, X off-diagonal"
+
+    def __init__(self, pairs: list[tuple[int, int]] | None = None, aliases: dict[str, str] | None = None):
+        self.pairs = pairs if pairs is not None else [(i, j) for i in range(6) for j in range(6) if i != j]
+        self.aliases = dict(aliases or {})
+
+    @staticmethod
+    def entry(to: int, frm: int) -> str:
+        """Parameter name of one entry."""
+        return f"x_{SHORT[to]}_{SHORT[frm]}"
+
+    def linear_names(self):  # noqa: D102
+        return [self.entry(i, j) for i, j in self.pairs]
+
+    def configured(self, prediction: np.ndarray, mask: np.ndarray, collinear: float = 0.995) -> "LoadcellCrosstalk":
+        """A copy fitting only identifiable entries, judged on a sample of the predicted true wrench."""
+        p = prediction[mask]  # (n, 6)
+        rms = np.sqrt(np.mean(p * p, axis=0))
+        scale = rms.max() if rms.max() > 0 else 1.0
+        live = [j for j in range(6) if rms[j] > 1e-6 * scale]
+        keep, aliases = [], {}
+        for j in sorted(live, key=lambda j: -rms[j]):
+            dup = None
+            for k in keep:
+                c = np.corrcoef(p[:, j], p[:, k])[0, 1] if rms[j] > 0 and rms[k] > 0 else 0.0
+                if abs(c) >= collinear:
+                    dup = k
+                    break
+            if dup is None:
+                keep.append(j)
+            else:
+                ratio = float(np.dot(p[:, j], p[:, dup]) / np.dot(p[:, dup], p[:, dup]))
+                for i in range(6):
+                    if i not in (j, dup):
+                        aliases[self.entry(i, dup)] = (aliases.get(self.entry(i, dup), "")
+                                                       + f" + {ratio:.4g} {self.entry(i, j)}")
+        pairs = [(i, j) for j in sorted(keep) for i in range(6) if i != j]
+        return LoadcellCrosstalk(pairs, aliases)
+
+    def sensor_terms(self, ctx: Context, nl: dict, prediction: np.ndarray) -> Terms:  # noqa: D102
+        names, cols, sup = [], [], []
+        for i, j in self.pairs:
+            col = np.zeros_like(prediction)
+            col[..., i] = prediction[..., j]
+            s = np.zeros(6, bool)
+            s[i] = True
+            names.append(self.entry(i, j))
+            cols.append(col)
+            sup.append(s)
+        return Terms(names, cols, sup)
+
+
+class SensorDrift(Effect):
+    """Reading drifts linearly with the time since the run's first trigger edge: rate_<channel>_per_s."""
+
+    name = "sensor_drift"
+    stage = "sensor"
+    physical = False
+    prunable = True
+    formula = "W_read += rate * t, t since the first trigger edge"
+
+    @staticmethod
+    def entry(c: int) -> str:
+        """Parameter name for channel ``c``."""
+        return f"rate_{WRENCH_CHANNELS[c]}_per_s"
+
+    def linear_names(self):  # noqa: D102
+        return [self.entry(c) for c in range(6)]
+
+    def sensor_terms(self, ctx: Context, nl: dict, prediction: np.ndarray) -> Terms:  # noqa: D102
+        t = np.maximum(ctx.time_s, 0.0)
+        names, cols, sup = [], [], []
+        for c in range(6):
+            col = np.zeros(t.shape + (6,))
+            col[..., c] = t
+            s = np.zeros(6, bool)
+            s[c] = True
+            names.append(self.entry(c))
+            cols.append(col)
+            sup.append(s)
+        return Terms(names, cols, sup)
+
+
+RIG_EFFECTS = (ServoLag, TunnelBlockage, FlowUnsteadiness, StructuralResonance, LoadcellCrosstalk, SensorDrift)

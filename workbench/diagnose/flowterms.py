@@ -1,0 +1,156 @@
+"""Kinematic regressors of the candidate effects: web normal terms, link drag, point loads.
+
+Everything is computed from a :class:`~workbench.hydro.motion.LegMotion` with the conventions
+of :mod:`workbench.hydro.kinematics` (leg plane X forward = load-cell y, Y up = load-cell z;
+the tunnel water moves along -X at the flow speed). Each method returns the load-cell wrench
+``(B, T, 6)`` of a *unit* parameter, so that an effect's contribution is ``param * column``.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+
+from workbench.hydro.ef import force_at_point_to_wrench, web_normal_force_to_wrench
+from workbench.hydro.kinematics import DEFAULT_GEOMETRY, LegGeometry, leg_state
+from workbench.hydro.motion import LegMotion
+
+RHO_KGPM3 = 1000.0
+
+
+def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1]
+
+
+def _perp(v: np.ndarray) -> np.ndarray:
+    return np.stack([-v[..., 1], v[..., 0]], axis=-1)
+
+
+class LegKinematics:
+    """Web and link kinematics of one motion batch, with the unit wrenches of the candidate terms."""
+
+    def __init__(self, motion: LegMotion, geometry: LegGeometry = DEFAULT_GEOMETRY, rho_kgpm3: float = RHO_KGPM3):
+        self.motion = motion
+        self.geometry = geometry
+        self.rho = rho_kgpm3
+        ah, ak = motion.accelerations_dps2()
+        self.wh = np.radians(motion.omega_h_dps)
+        self.wk = np.radians(motion.omega_k_dps)
+        self.ah = np.radians(ah)
+        self.ak = np.radians(ak)
+        self.state = leg_state(np.radians(motion.theta_h_deg), np.radians(motion.theta_k_deg), self.wh, self.wk,
+                               self.ah, self.ak, geometry)
+        u = np.asarray(motion.flow_speed_mps, float)
+        self.water = np.stack([-u, np.zeros_like(u)], axis=-1)
+
+    @property
+    def area_m2(self) -> float:
+        """Web area S."""
+        return self.geometry.web_side_m ** 2
+
+    @cached_property
+    def rel(self) -> np.ndarray:
+        """Water velocity relative to Q (B, T, 2)."""
+        return self.water - self.state.q_vel
+
+    @cached_property
+    def v_n(self) -> np.ndarray:
+        """Normal component of the relative water velocity at Q."""
+        return _dot(self.rel, self.state.normal)
+
+    @cached_property
+    def v_t(self) -> np.ndarray:
+        """Tangential component of the relative water velocity at Q."""
+        return _dot(self.rel, self.state.tangent)
+
+    @cached_property
+    def speed(self) -> np.ndarray:
+        """|V_rel| at Q."""
+        return np.hypot(self.rel[..., 0], self.rel[..., 1])
+
+    @cached_property
+    def a_n(self) -> np.ndarray:
+        """Normal component of Q's acceleration."""
+        return _dot(self.state.q_acc, self.state.normal)
+
+    def normal_wrench(self, f_n: np.ndarray) -> np.ndarray:
+        """A force ``f_n`` along the web normal at Q as a load-cell wrench."""
+        return web_normal_force_to_wrench(f_n, self.state, self.geometry)
+
+    # --------------------------------------------------------------- unit columns
+    def added_mass_unit(self) -> np.ndarray:
+        """dF_n = -a_n (per kg of extra added mass)."""
+        return self.normal_wrench(-self.a_n)
+
+    def normal_drag_force(self, c: float = 1.0) -> np.ndarray:
+        """0.5 rho S c |V_n| V_n (N along the normal)."""
+        return 0.5 * self.rho * self.area_m2 * c * np.abs(self.v_n) * self.v_n
+
+    def drag_unit(self) -> np.ndarray:
+        """dF_n = 0.5 rho S |V_n| V_n (per unit of drag coefficient)."""
+        return self.normal_wrench(self.normal_drag_force(1.0))
+
+    def lift_unit(self) -> np.ndarray:
+        """dF_n = 0.5 rho S |V| V_t (per unit lift coefficient), the tangential flow turned to the normal."""
+        return self.normal_wrench(0.5 * self.rho * self.area_m2 * self.speed * self.v_t)
+
+    def link_points(self, quadrature: int = 4):
+        """Gauss points of thigh (O to C) and calf (B to the web's near edge): position, velocity, normal, length."""
+        g, st = self.geometry, self.state
+        xs, ws = np.polynomial.legendre.leggauss(quadrature)
+        s01, w01 = (xs + 1) / 2, ws / 2
+        c_vel = self.wh[..., None] * _perp(st.c)
+        a_vel = (self.wh + self.wk)[..., None] * _perp(st.a)
+        thigh_normal = _perp(st.c / g.oc_m)
+        for s, w in zip(s01, w01):
+            yield s * st.c, s * c_vel, thigh_normal, w * g.oc_m
+        # the calf's points are C + kappa A: B at kappa = 1, the web's near edge at kappa_end
+        calf_len = g.bq_over_bc * g.bc_m - g.web_side_m / 2
+        kappa_end = 1.0 - calf_len / g.oa_m
+        for s, w in zip(s01, w01):
+            kap = 1.0 + s * (kappa_end - 1.0)
+            yield st.c + kap * st.a, c_vel + kap * a_vel, st.normal, w * calf_len
+
+    def link_drag_unit(self, x_m: float = 0.01, quadrature: int = 4) -> np.ndarray:
+        """Cross-flow drag of thigh and calf per unit cd_d_m: 0.5 rho |V_n| V_n per length, integrated."""
+        out = np.zeros(self.state.q.shape[:-1] + (6,))
+        for pos, vel, nrm, dl in self.link_points(quadrature):
+            v_n = _dot(self.water - vel, nrm)
+            f = (0.5 * self.rho * np.abs(v_n) * v_n * dl)[..., None] * nrm
+            out += force_at_point_to_wrench(f, pos, x_m)
+        return out
+
+    def point_load_units(self) -> tuple[np.ndarray, np.ndarray]:
+        """Unit wrenches of a vertical load: (per N of net_n at the hip, per N m of net_n * arm_m).
+
+        The load acts at ``arm_m`` from the hip along the 3-D hip-to-Q line, so its moment is
+        ``net_n * arm_m * (X_Q, -x_Q) / |Q|`` on (tx, ty).
+        """
+        q = self.state.q
+        x = self.geometry.web_offset_x_m
+        norm = np.sqrt(x * x + q[..., 0] ** 2 + q[..., 1] ** 2)
+        force = np.zeros(q.shape[:-1] + (6,))
+        force[..., 2] = 1.0
+        moment = np.zeros(q.shape[:-1] + (6,))
+        moment[..., 3] = q[..., 0] / norm
+        moment[..., 4] = -x / norm
+        return force, moment
+
+
+def first_order_lag(u: np.ndarray, rate_per_s: np.ndarray | float, dt_s: float) -> np.ndarray:
+    """Integrate ``dx/dt = rate (u - x)`` along axis 1 of ``u`` (B, T, ...), from ``x = u[:, 0]``.
+
+    Each step is the exact exponential update for the mid-step input (second-order accurate for
+    smooth inputs, stable for any ``rate * dt``); the rate may change every tick.
+    """
+    u = np.asarray(u, float)
+    rate = np.broadcast_to(np.asarray(rate_per_s, float), u.shape[:2])
+    gain = -np.expm1(-rate * dt_s).reshape(u.shape[:2] + (1,) * (u.ndim - 2))
+    out = np.empty_like(u)
+    x = u[:, 0].copy()
+    out[:, 0] = x
+    for k in range(1, u.shape[1]):
+        x += gain[:, k] * (0.5 * (u[:, k - 1] + u[:, k]) - x)
+        out[:, k] = x
+    return out

@@ -1,0 +1,273 @@
+"""Weighted least squares on block sums: fits, held-out errors and robust covariances without the big matrix.
+
+Per block of ticks and per channel the design is reduced to its Gram matrix ``G = X'X``,
+``b = X'r`` and ``yy = r'r`` (r = reading - fixed part). Every fit, held-out error and
+significance test of the selection is then small-matrix algebra on these sums. Channels are
+weighted by ``w_c`` (the inverse of the diagnosed model's residual variance: each channel counts
+alike). Per-run columns (a tone whose phase differs run to run) are profiled out run by run.
+Parameter covariances are sandwich (HAC) estimates over blocks, with Newey-West weights between
+neighbouring blocks of a run, so autocorrelated residuals do not shrink the intervals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Grams:
+    """Block sums of one configuration over all runs (training and held-out)."""
+
+    names: list[str]
+    chan_cols: list[np.ndarray]   # per channel: indices into ``names`` of the columns it holds
+    G: list[np.ndarray]           # per channel: (nb, k_c + m, k_c + m)
+    b: list[np.ndarray]           # per channel: (nb, k_c + m)
+    yy: np.ndarray                # (nb, 6)
+    n: np.ndarray                 # (nb,) ticks per block
+    run: np.ndarray               # (nb,) campaign run index
+    order: np.ndarray             # (nb,) block number within the run
+    heldout: np.ndarray           # (nb,) bool
+    local_names: list[str]
+
+    @property
+    def n_local(self) -> int:
+        """Per-run columns."""
+        return len(self.local_names)
+
+    def subset(self, names: list[str]) -> "Grams":
+        """The same sums for a subset of the shared columns (local columns kept)."""
+        pos = {n: i for i, n in enumerate(self.names)}
+        keep = [pos[n] for n in names]
+        newpos = {old: new for new, old in enumerate(keep)}
+        m = self.n_local
+        cc, gg, bb = [], [], []
+        for c in range(6):
+            sel = [k for k, col in enumerate(self.chan_cols[c]) if col in newpos]
+            k_c = len(self.chan_cols[c])
+            idx = np.array(sel + list(range(k_c, k_c + m)), int)
+            cc.append(np.array([newpos[self.chan_cols[c][k]] for k in sel], int))
+            gg.append(self.G[c][:, idx][:, :, idx])
+            bb.append(self.b[c][:, idx])
+        return Grams(list(names), cc, gg, bb, self.yy, self.n, self.run, self.order, self.heldout,
+                     self.local_names)
+
+
+def accumulate(design, rs, blocks, shared_names: list[str] | None = None) -> Grams:
+    """Block sums of ``design`` on the batch ``rs`` (ticks gathered by ``blocks``)."""
+    b_, t_ = rs.shape
+    names = design.names if shared_names is None else shared_names
+    pos = {n: i for i, n in enumerate(design.names)}
+    resid = (rs.y - design.base).reshape(b_ * t_, 6)
+    ticks = blocks.ticks
+    pad = ticks < 0
+    idx = np.where(pad, 0, ticks)
+    wmask = (~pad).astype(float)[..., None]
+    r = resid[idx] * wmask                     # (nb, L, 6)
+    yy = np.einsum("nlc,nlc->nc", r, r)
+    loc = [c.reshape(b_ * t_, 6)[idx] * wmask for c in design.local]  # each (nb, L, 6)
+    chan_cols, G, bvec = [], [], []
+    for c in range(6):
+        cols = [i for i, n in enumerate(names) if n in pos and design.support[pos[n]][c]]
+        xs = [design.cols[pos[names[i]]].reshape(b_ * t_, 6)[idx, c] * wmask[..., 0] for i in cols]
+        xs += [lc[..., c] for lc in loc]
+        if xs:
+            x = np.stack(xs, axis=-1)              # (nb, L, k)
+            G.append(np.matmul(np.swapaxes(x, 1, 2), x))
+            bvec.append(np.einsum("nlk,nl->nk", x, r[..., c]))
+        else:
+            G.append(np.zeros((len(ticks), 0, 0)))
+            bvec.append(np.zeros((len(ticks), 0)))
+        chan_cols.append(np.array(cols, int))
+    return Grams(list(names), chan_cols, G, bvec, yy, (~pad).sum(axis=1), blocks.run, blocks.order,
+                 np.full(len(ticks), rs.heldout), list(design.local_names))
+
+
+def concat(parts: list[Grams]) -> Grams:
+    """Join the sums of several batches (same columns)."""
+    p0 = parts[0]
+    return Grams(p0.names, p0.chan_cols, [np.concatenate([p.G[c] for p in parts]) for c in range(6)],
+                 [np.concatenate([p.b[c] for p in parts]) for c in range(6)],
+                 np.concatenate([p.yy for p in parts]), np.concatenate([p.n for p in parts]),
+                 np.concatenate([p.run for p in parts]), np.concatenate([p.order for p in parts]),
+                 np.concatenate([p.heldout for p in parts]), p0.local_names)
+
+
+def weighted(gr: Grams, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Channel-weighted sums per block: G (nb, K+m, K+m), b (nb, K+m), yy (nb,)."""
+    k, m = len(gr.names), gr.n_local
+    nb = len(gr.yy)
+    gw = np.zeros((nb, k + m, k + m))
+    bw = np.zeros((nb, k + m))
+    for c in range(6):
+        idx = np.concatenate([gr.chan_cols[c], np.arange(k, k + m)]).astype(int)
+        if len(idx) == 0:
+            continue
+        gw[:, idx[:, None], idx[None, :]] += w[c] * gr.G[c]
+        bw[:, idx] += w[c] * gr.b[c]
+    return gw, bw, gr.yy @ w
+
+
+@dataclass
+class Fit:
+    """A weighted least-squares fit of shared (and per-run) coefficients."""
+
+    names: list[str]
+    theta: np.ndarray                 # (K,) shared
+    local: dict[int, np.ndarray]      # run index -> (m,) per-run coefficients
+    local_info: dict[int, np.ndarray]  # run index -> (m,) diagonal of the per-run information
+    cov: np.ndarray                   # (K, K) HAC covariance of theta
+    sse_block: np.ndarray             # (nb,) weighted SSE per block
+    sse_block_c: np.ndarray           # (nb, 6) SSE per block and channel (unweighted)
+
+    def coefs(self) -> dict[str, float]:
+        """Shared coefficients by name."""
+        return {n: float(v) for n, v in zip(self.names, self.theta)}
+
+    def stderr(self) -> dict[str, float]:
+        """Standard errors by name."""
+        return {n: float(np.sqrt(max(self.cov[i, i], 0.0))) for i, n in enumerate(self.names)}
+
+
+def _solve(a: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Solve a symmetric system robustly (Jacobi-scaled, pseudo-inverse on rank loss)."""
+    if a.shape[0] == 0:
+        return np.zeros(0)
+    d = np.sqrt(np.maximum(np.diag(a), 1e-300))
+    s = a / d[:, None] / d[None, :]
+    try:
+        x = np.linalg.solve(s + 1e-12 * np.eye(len(d)), r / d)
+    except np.linalg.LinAlgError:
+        x = np.linalg.pinv(s, rcond=1e-10) @ (r / d)
+    return x / d
+
+
+def _inv(a: np.ndarray) -> np.ndarray:
+    if a.shape[0] == 0:
+        return np.zeros((0, 0))
+    d = np.sqrt(np.maximum(np.diag(a), 1e-300))
+    s = a / d[:, None] / d[None, :]
+    return np.linalg.pinv(s, rcond=1e-12) / d[:, None] / d[None, :]
+
+
+def fit(gr: Grams, w: np.ndarray, hac_lags: int = 2, fixed: dict[str, float] | None = None) -> Fit:
+    """Fit on the training blocks; per-run columns of held-out runs are fitted on those runs.
+
+    ``fixed`` pins some shared coefficients (they are not fitted).
+    """
+    k, m = len(gr.names), gr.n_local
+    gw, bw, yyw = weighted(gr, w)
+    fixed = fixed or {}
+    free = np.array([n not in fixed for n in gr.names], bool)
+    theta_fixed = np.array([fixed.get(n, 0.0) for n in gr.names])
+    # move the fixed coefficients into the right-hand side
+    b_adj = bw - np.einsum("nij,j->ni", gw[:, :, :k], theta_fixed)
+    train = ~gr.heldout
+    runs = np.unique(gr.run)
+    run_pos = {r: i for i, r in enumerate(runs)}
+    ridx = np.array([run_pos[r] for r in gr.run])
+    nr = len(runs)
+    g_run = np.zeros((nr, k + m, k + m))
+    b_run = np.zeros((nr, k + m))
+    np.add.at(g_run, ridx, gw)
+    np.add.at(b_run, ridx, b_adj)
+    held_run = np.zeros(nr, bool)
+    held_run[ridx[gr.heldout]] = True
+    fi = np.flatnonzero(free)
+    a_s = np.zeros((len(fi), len(fi)))
+    r_s = np.zeros(len(fi))
+    cinv = {}
+    for i in range(nr):
+        A = g_run[i][np.ix_(fi, fi)]
+        a = b_run[i][fi]
+        if m:
+            B = g_run[i][np.ix_(fi, np.arange(k, k + m))]
+            C = g_run[i][k:, k:]
+            ci = _inv(C)
+            cinv[i] = ci
+            A = A - B @ ci @ B.T
+            a = a - B @ ci @ b_run[i][k:]
+        if not held_run[i]:
+            a_s += A
+            r_s += a
+    theta = theta_fixed.copy()
+    theta[fi] = _solve(a_s, r_s)
+    local, local_info = {}, {}
+    if m:
+        for i in range(nr):
+            C = g_run[i][k:, k:]
+            rhs = b_run[i][k:] - g_run[i][k:, fi] @ theta[fi]
+            local[int(runs[i])] = cinv[i] @ rhs
+            local_info[int(runs[i])] = np.diag(C).copy()
+    th_block = np.zeros((len(gr.run), k + m))
+    th_block[:, :k] = theta
+    if m:
+        th_block[:, k:] = np.array([local[int(r)] for r in gr.run])
+    sse = yyw - 2 * np.einsum("ni,ni->n", th_block, bw) + np.einsum("ni,nij,nj->n", th_block, gw, th_block)
+    sse_c = np.zeros_like(gr.yy)
+    for c in range(6):
+        idx = np.concatenate([gr.chan_cols[c], np.arange(k, k + m)]).astype(int)
+        if len(idx) == 0:
+            sse_c[:, c] = gr.yy[:, c]
+            continue
+        tc = th_block[:, idx]
+        sse_c[:, c] = (gr.yy[:, c] - 2 * np.einsum("ni,ni->n", tc, gr.b[c])
+                       + np.einsum("ni,nij,nj->n", tc, gr.G[c], tc))
+    # sandwich covariance over training blocks (scores of the free shared coefficients)
+    scores = bw[:, fi] - np.einsum("nij,nj->ni", gw[:, fi, :], th_block)
+    cov_f = _hac_cov(a_s, scores[train], gr.run[train], gr.order[train], hac_lags)
+    cov = np.full((k, k), 0.0)
+    cov[np.ix_(fi, fi)] = cov_f
+    return Fit(list(gr.names), theta, local, local_info, cov, np.maximum(sse, 0.0), np.maximum(sse_c, 0.0))
+
+
+def _hac_cov(bread_inv: np.ndarray, scores: np.ndarray, run: np.ndarray, order: np.ndarray, lags: int) -> np.ndarray:
+    """Newey-West sandwich: A^-1 (sum s s' + weighted neighbour terms within runs) A^-1."""
+    if bread_inv.shape[0] == 0:
+        return np.zeros((0, 0))
+    meat = scores.T @ scores
+    key = run.astype(np.int64) * 1_000_000 + order
+    srt = np.argsort(key)
+    s, r, o = scores[srt], run[srt], order[srt]
+    for lag in range(1, lags + 1):
+        wl = 1.0 - lag / (lags + 1)
+        same = (r[lag:] == r[:-lag]) & (o[lag:] - o[:-lag] == lag)
+        if same.any():
+            c = s[lag:][same].T @ s[:-lag][same]
+            meat += wl * (c + c.T)
+    ai = _inv(bread_inv)
+    return ai @ meat @ ai
+
+
+def heldout_test(sse_before: np.ndarray, sse_after: np.ndarray, gr: Grams, hac_lags: int = 2,
+                 correction: np.ndarray | None = None) -> dict:
+    """Is the held-out error reduction real? One-sided t-test on block gains with HAC variance.
+
+    ``correction`` (per block) is subtracted from the gains: what a fit of noise would gain
+    (per-run nuisance columns fitted on the held-out runs themselves).
+    """
+    from scipy import stats
+
+    h = gr.heldout
+    gain = sse_before[h] - sse_after[h]
+    if correction is not None:
+        gain = gain - correction[h]
+    n = len(gain)
+    total = float(sse_before[h].sum())
+    if n < 3 or total <= 0:
+        return {"t": 0.0, "p": 1.0, "relative": 0.0, "n_blocks": n}
+    mean = gain.mean()
+    d = gain - mean
+    run, order = gr.run[h], gr.order[h]
+    key = run.astype(np.int64) * 1_000_000 + order
+    srt = np.argsort(key)
+    d, run, order = d[srt], run[srt], order[srt]
+    var = float(d @ d)
+    for lag in range(1, hac_lags + 1):
+        same = (run[lag:] == run[:-lag]) & (order[lag:] - order[:-lag] == lag)
+        var += 2 * (1 - lag / (hac_lags + 1)) * float(d[lag:][same] @ d[:-lag][same])
+    var = max(var, 1e-300) / n / max(n - 1, 1)
+    t = mean / np.sqrt(var)
+    p = float(stats.t.sf(t, df=max(n - 1, 1)))
+    return {"t": float(t), "p": p, "relative": float(gain.sum() / total), "n_blocks": n}

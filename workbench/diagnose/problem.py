@@ -1,0 +1,146 @@
+"""The fitting problem: a campaign, the diagnosed model and how configurations are fitted and judged.
+
+:class:`Problem` evaluates a :class:`~workbench.diagnose.chain.Configuration` on every batch
+(or on a smaller *search* subsample of training runs, for the nonlinear searches), reduces it
+to block sums and fits it. Channel weights are fixed once, from the diagnosed model's own
+training residual, so every configuration is judged on the same scale.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from workbench.diagnose import lsq
+from workbench.diagnose.chain import Configuration, Lowpass, build_design
+from workbench.diagnose.data import Campaign, RunSet, make_blocks, make_runset
+from workbench.hydro.kinematics import DEFAULT_GEOMETRY
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """Fit knobs (``pipelines/diagnose.yaml`` section ``fit``)."""
+
+    #: training runs used by the nonlinear searches (a deterministic subsample), and their tick stride
+    search_runs: int = 40
+    search_stride: int = 4
+    #: Newey-West lags (in blocks) of the robust covariances and tests
+    hac_lags: int = 2
+    #: fixed-point passes when crosstalk reads coefficients of the force terms
+    passes: int = 3
+
+
+class Problem:
+    """A campaign and a model, with cached blocks and search subsample."""
+
+    def __init__(self, campaign: Campaign, model, lowpass: Lowpass | None = None,
+                 settings: FitSettings | None = None, geometry=DEFAULT_GEOMETRY):
+        self.campaign = campaign
+        self.model = model
+        self.lowpass = lowpass
+        self.settings = settings or FitSettings()
+        self.geometry = geometry
+        ds = campaign.settings
+        self._blocks = {id(rs): make_blocks(rs, ds.tick_stride, ds.block_s) for rs in campaign.sets}
+        self.search_sets = self._make_search_sets()
+        self._search_blocks = {id(rs): make_blocks(rs, self.settings.search_stride, ds.block_s)
+                               for rs in self.search_sets}
+        self.weights = np.ones(6)
+        self._caches: dict[int, dict] = {id(rs): {} for rs in self.search_sets}
+        base = self.fit(Configuration(), sets="train")
+        sse_c = base.sse_block_c.sum(axis=0)
+        n = base_n = self._ticks(sets="train")
+        var = sse_c / max(n, 1)
+        floor = max(var.max(), 1e-300) * 1e-10
+        self.weights = 1.0 / np.maximum(var, floor)
+        del base_n
+
+    # ---------------------------------------------------------------- batches
+    def _make_search_sets(self) -> list[RunSet]:
+        train = [i for i, h in enumerate(self.campaign.heldout) if not h]
+        n = self.settings.search_runs
+        if n and len(train) > n:
+            pick = np.linspace(0, len(train) - 1, n).round().astype(int)
+            train = [train[i] for i in sorted(set(pick))]
+        runs = self.campaign.runs
+        ds = self.campaign.settings
+        train = sorted(train, key=lambda i: len(runs[i].time_s))
+        size = max(1, ds.chunk_runs)
+        return [make_runset([runs[i] for i in train[j:j + size]], train[j:j + size], self.campaign.dt_s, ds, False)
+                for j in range(0, len(train), size)]
+
+    def sets(self, which: str) -> list[tuple[RunSet, object]]:
+        """Batches with their blocks: ``all``, ``train``, ``heldout`` or ``search``."""
+        if which == "search":
+            return [(rs, self._search_blocks[id(rs)]) for rs in self.search_sets]
+        c = self.campaign
+        chosen = {"all": c.sets, "train": c.train_sets, "heldout": c.heldout_sets}[which]
+        return [(rs, self._blocks[id(rs)]) for rs in chosen]
+
+    def _ticks(self, sets: str) -> int:
+        return int(sum((b.ticks >= 0).sum() for _, b in self.sets(sets)))
+
+    # ------------------------------------------------------------------- fits
+    def design(self, rs: RunSet, config: Configuration, coefs: dict | None = None, names=None):
+        """The configuration on one batch."""
+        return build_design(self.model, rs, config, coefs, self.lowpass, self.geometry,
+                            only=None if names is None else set(names), cache=self._caches.get(id(rs)))
+
+    def grams(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
+              sets: str = "all") -> lsq.Grams:
+        """Block sums of ``config`` (columns restricted to ``names`` when given)."""
+        parts = []
+        for rs, blocks in self.sets(sets):
+            d = self.design(rs, config, coefs, names)
+            parts.append(lsq.accumulate(d, rs, blocks, names if names is not None else d.names))
+        return lsq.concat(parts)
+
+    def fit(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
+            sets: str = "all", fixed: dict | None = None) -> lsq.Fit:
+        """Fit ``config``; repeats while crosstalk columns depend on the force coefficients."""
+        coefs = dict(coefs or {})
+        passes = self.settings.passes if _reads_prediction(config) else 1
+        result = None
+        for _ in range(max(1, passes)):
+            gr = self.grams(config, coefs, names, sets)
+            result = lsq.fit(gr, self.weights, self.settings.hac_lags, fixed)
+            new = result.coefs()
+            change = max((abs(new[k] - coefs.get(k, 0.0)) / (abs(new[k]) + 1e-12) for k in new
+                          if not k.startswith("loadcell_crosstalk.")), default=0.0)
+            coefs.update(new)
+            if change < 1e-3:
+                break
+        result.grams = gr  # type: ignore[attr-defined]
+        return result
+
+
+def _reads_prediction(config: Configuration) -> bool:
+    has_force_cols = any(a.effect.linear_names() for a in config.stage("force"))
+    return has_force_cols and any(a.name == "loadcell_crosstalk" for a in config.actives)
+
+
+def run_residuals(problem: Problem, config: Configuration, fit: lsq.Fit | None = None):
+    """Every run's measured and predicted wrench under ``config`` fitted by ``fit`` (all ticks)."""
+    from workbench.diagnose.evidence import RunResidual
+
+    coefs = fit.coefs() if fit is not None else {}
+    out = []
+    for rs in problem.campaign.sets:
+        d = problem.design(rs, config, coefs)
+        local = None
+        if d.local_names and fit is not None and fit.local:
+            m = len(d.local_names)
+            vals = np.array([fit.local.get(int(i), np.zeros(m)) for i in rs.index])
+            local = {n: vals[:, j] for j, n in enumerate(d.local_names)}
+        pred = d.predict(coefs, local)
+        m = rs.motion
+        for i in range(rs.shape[0]):
+            v = rs.valid[i]
+            out.append(RunResidual(
+                run_id=rs.run_ids[i], index=int(rs.index[i]), heldout=rs.heldout, flow=float(rs.flow[i]),
+                freq=float(rs.freq[i]), dt_s=rs.dt_s, time_s=rs.time_s[i, v], fit=rs.fit[i, v], rest=rs.rest[i, v],
+                theta_h=m.theta_h_deg[i, v], theta_k=m.theta_k_deg[i, v], omega_h=m.omega_h_dps[i, v],
+                omega_k=m.omega_k_dps[i, v], measured=rs.y[i, v], predicted=pred[i, v]))
+    out.sort(key=lambda r: r.index)
+    return out

@@ -1,0 +1,358 @@
+"""Forward stepwise selection of effects, judged on held-out runs (a swappable object, after pysindy's optimizers).
+
+Each step fits every remaining candidate on the training runs together with the effects
+already chosen (nonlinear parameters by a grid search and a local refinement that wrap the
+linear fit) and scores it on the held-out runs by the held-out log-likelihood gain: per block
+and channel ``n/2 log(SSE_before / SSE_after)``, which weighs a quiet channel and a loud one
+alike. An effect is claimed only when
+
+* its mean block gain is positive by a one-sided t-test with a Newey-West variance over
+  neighbouring blocks (autocorrelated residuals do not inflate the evidence), at level
+  ``alpha`` divided by the number of candidates of the step (Bonferroni);
+* it removes at least ``min_gain`` of the held-out MSE in the channel it helps most;
+* it passes its structural checks (a flow tone must vanish at zero flow and scale with the
+  flow sensitivity of the force; otherwise the peak is someone else's).
+
+Per-run nuisance columns (a tone's phase) are fitted on held-out runs too; their gain is
+measured against the same fit at off-peak frequencies (what fitting noise would gain).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import product
+
+import numpy as np
+from scipy import optimize, stats
+
+from workbench.contract.columns import WRENCH_CHANNELS
+from workbench.diagnose import lsq
+from workbench.diagnose.chain import Active, Configuration
+from workbench.diagnose.library import Effect, EffectLibrary
+
+
+@dataclass(frozen=True)
+class SelectionSettings:
+    """Selection knobs (``pipelines/diagnose.yaml`` section ``selection``)."""
+
+    alpha: float = 0.01
+    min_gain: float = 0.02
+    max_effects: int = 8
+    #: entries of crosstalk/drift kept when significant at this level (Bonferroni over entries)
+    prune_alpha: float = 0.001
+    #: a runner-up reaching this share of the winner's held-out gain is reported as an alternative
+    ambiguity_ratio: float = 0.7
+    refine: bool = True
+    #: half-width of the tone-frequency search around a residual peak (Hz)
+    tone_window_hz: float = 0.12
+    #: Nelder-Mead evaluations per nonlinear parameter in refinements
+    refine_evals: int = 14
+
+
+@dataclass
+class Candidate:
+    """One candidate effect fitted in one step."""
+
+    effect: Effect
+    active: Active
+    config: Configuration
+    names: list[str]
+    fit: lsq.Fit
+    test: dict = field(default_factory=dict)
+    gain_c: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    profile: dict | None = None
+    ok: bool = False
+    note: str = ""
+
+    @property
+    def label(self) -> str:
+        """Name, with the searched values."""
+        nl = ", ".join(f"{k}={v:.3g}" for k, v in self.active.nl.items())
+        return f"{self.effect.name}({nl})" if nl else self.effect.name
+
+
+@dataclass
+class Step:
+    """An accepted effect with its test and the alternatives it beat."""
+
+    candidate: Candidate
+    mse_before: np.ndarray
+    mse_after: np.ndarray
+    table: list[dict]
+    alternatives: list[str]
+
+
+@dataclass
+class SelectionResult:
+    """The chosen configuration, its fit and the record of every step."""
+
+    config: Configuration
+    names: list[str]
+    fit: lsq.Fit
+    steps: list[Step]
+    last_table: list[dict]
+
+
+def block_llr(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams) -> np.ndarray:
+    """Held-out log-likelihood gain per block: sum over channels of n/2 log(SSE_before / SSE_after)."""
+    sb = np.maximum(before.sse_block_c, 1e-300)
+    sa = np.maximum(after.sse_block_c, 1e-300)
+    return 0.5 * gr.n[:, None] * np.log(sb / sa)
+
+
+def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correction: np.ndarray | None = None):
+    """Held-out test of ``after`` against ``before``: t, p, llr and per-channel relative MSE reduction."""
+    h = gr.heldout
+    llr = block_llr(before, after, gr).sum(axis=1)
+    if correction is not None:
+        llr = llr - correction
+    g = llr[h]
+    n = len(g)
+    sb = before.sse_block_c[h].sum(axis=0)
+    sa = after.sse_block_c[h].sum(axis=0)
+    gain_c = np.where(sb > 0, (sb - sa) / np.maximum(sb, 1e-300), 0.0)
+    if correction is not None:
+        # the per-run nuisance fit gains on noise too: count only what beats the off-peak fits
+        gain_c = gain_c * max(0.0, g.sum()) / max(block_llr(before, after, gr).sum(axis=1)[h].sum(), 1e-300)
+    if n < 3:
+        return {"t": 0.0, "p": 1.0, "llr": float(g.sum()), "n_blocks": n}, gain_c
+    mean = g.mean()
+    d = g - mean
+    run, order = gr.run[h], gr.order[h]
+    srt = np.argsort(run.astype(np.int64) * 1_000_000 + order)
+    d, run, order = d[srt], run[srt], order[srt]
+    var = float(d @ d)
+    for lag in range(1, hac_lags + 1):
+        same = (run[lag:] == run[:-lag]) & (order[lag:] - order[:-lag] == lag)
+        var += 2 * (1 - lag / (hac_lags + 1)) * float(d[lag:][same] @ d[:-lag][same])
+    se = np.sqrt(max(var, 1e-300) / n / max(n - 1, 1))
+    t = float(mean / se)
+    return {"t": t, "p": float(stats.t.sf(t, df=max(n - 1, 1))), "llr": float(g.sum()), "n_blocks": n}, gain_c
+
+
+class StepwiseSelection:
+    """Forward stepwise selection of effects on held-out runs."""
+
+    def __init__(self, settings: SelectionSettings | None = None):
+        self.settings = settings or SelectionSettings()
+
+    # ------------------------------------------------------------------ search
+    def search(self, problem, config: Configuration, coefs: dict, names: list[str], effect: Effect,
+               grids: dict[str, tuple] | None = None, start: dict | None = None) -> tuple[dict, dict]:
+        """Nonlinear parameters of ``effect`` minimising the training SSE (linear terms refitted each time)."""
+        params = effect.search
+        pnames = [p.name for p in params]
+        w = problem.weights
+        hac = problem.settings.hac_lags
+        cache: dict[tuple, float] = {}
+
+        def objective(values) -> float:
+            key = tuple(round(float(v), 10) for v in values)
+            if key not in cache:
+                nl = dict(zip(pnames, key))
+                cfg = config.with_effect(Active(effect, nl))
+                extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
+                gr = problem.grams(cfg, coefs, names + extra, sets="search")
+                cache[key] = float(lsq.fit(gr, w, hac).sse_block.sum())
+            return cache[key]
+
+        if start is not None and grids is None:
+            best = [start[p] for p in pnames]
+        else:
+            axes = [grids[p.name] if grids and p.name in grids else p.grid for p in params]
+            points = list(product(*axes))
+            vals = [objective(pt) for pt in points]
+            best = list(points[int(np.argmin(vals))])
+        profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values())}
+        # local refinement in (log) coordinates, clipped to the bounds
+        logs = [p.log for p in params]
+        lo = np.array([np.log(p.bounds[0]) if p.log else p.bounds[0] for p in params])
+        hi = np.array([np.log(p.bounds[1]) if p.log else p.bounds[1] for p in params])
+
+        def to_x(v):
+            return np.array([np.log(max(x, 1e-300)) if lg else x for x, lg in zip(v, logs)])
+
+        def from_x(x):
+            x = np.clip(x, lo, hi)
+            return [float(np.exp(v)) if lg else float(v) for v, lg in zip(x, logs)]
+
+        x0 = to_x(best)
+        if len(params) == 1:
+            step = 0.25 if logs[0] else max(0.02 * abs(x0[0]), 0.01)
+            if grids and pnames[0] in grids and len(grids[pnames[0]]) > 1:
+                step = float(np.diff(grids[pnames[0]]).mean())
+            res = optimize.minimize_scalar(lambda x: objective(from_x(np.array([x]))),
+                                           bounds=(max(lo[0], x0[0] - step), min(hi[0], x0[0] + step)),
+                                           method="bounded",
+                                           options={"xatol": 1e-3 if logs[0] else 1e-4,
+                                                    "maxiter": self.settings.refine_evals + 6})
+            xbest = np.array([res.x])
+        else:
+            simplex = [x0] + [x0 + np.eye(len(x0))[i] * (0.3 if logs[i] else 0.1 * max(abs(x0[i]), 0.5))
+                              for i in range(len(x0))]
+            res = optimize.minimize(lambda x: objective(from_x(x)), x0, method="Nelder-Mead",
+                                    options={"initial_simplex": np.array(simplex),
+                                             "maxfev": self.settings.refine_evals * len(x0) * 2,
+                                             "xatol": 1e-3, "fatol": 1e-9})
+            xbest = res.x
+        out = from_x(xbest)
+        if objective(out) > objective(best):
+            out = best
+        profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values())}
+        return dict(zip(pnames, out)), profile
+
+    # ------------------------------------------------------------ candidates
+    def _linear_candidates(self, problem, config, coefs, names, effects, current) -> list[Candidate]:
+        if not effects:
+            return []
+        sup = config
+        for e in effects:
+            sup = sup.with_effect(Active(e, {}))
+        extra = {e.name: [f"{e.name}.{n}" for n in e.linear_names()] for e in effects}
+        all_names = names + [n for e in effects for n in extra[e.name]]
+        gr = problem.grams(sup, coefs, all_names)
+        out = []
+        for e in effects:
+            nm = names + extra[e.name]
+            sub = gr.subset(nm)
+            f = lsq.fit(sub, problem.weights, problem.settings.hac_lags)
+            f.grams = sub  # type: ignore[attr-defined]
+            out.append(Candidate(e, Active(e, {}), config.with_effect(Active(e, {})), nm, f))
+        return out
+
+    def _nonlinear_candidate(self, problem, config, coefs, names, effect, peak=None) -> Candidate:
+        grids = None
+        if effect.needs_peak:
+            f0 = peak.frequency_hz
+            hw = self.settings.tone_window_hz
+            grids = {"tone_hz": tuple(np.round(np.linspace(f0 - hw, f0 + hw, 13), 4))}
+        nl, profile = self.search(problem, config, coefs, names, effect, grids)
+        act = Active(effect, nl)
+        cfg = config.with_effect(act)
+        nm = names + [f"{effect.name}.{n}" for n in effect.linear_names()]
+        f = problem.fit(cfg, coefs, nm)
+        return Candidate(effect, act, cfg, nm, f, profile=profile)
+
+    def _null_correction(self, problem, cand: Candidate, coefs, current: lsq.Fit) -> np.ndarray | None:
+        variants = cand.effect.null_variants(cand.active.nl)
+        if not variants:
+            return None
+        gains = []
+        for nl in variants:
+            cfg = cand.config.with_effect(Active(cand.effect, nl))
+            f = problem.fit(cfg, coefs, cand.names)
+            gains.append(block_llr(current, f, f.grams).sum(axis=1))
+        return np.mean(gains, axis=0)
+
+    # ------------------------------------------------------------------ select
+    def select(self, problem, library: EffectLibrary, peaks_of=None, plausible=None, progress=None) -> SelectionResult:
+        """Run the forward selection.
+
+        ``peaks_of(config, fit)`` returns the narrowband residual peaks of a configuration (the
+        frequencies a tone candidate is tried at); ``plausible(candidate, current_config,
+        current_fit)`` returns ``(ok, note)`` for structural checks.
+        """
+        s = self.settings
+        hac = problem.settings.hac_lags
+        config = Configuration()
+        names: list[str] = []
+        current = problem.fit(config, names=[])
+        coefs: dict = {}
+        steps: list[Step] = []
+        table: list[dict] = []
+        crosstalk_configured = False
+        for _ in range(s.max_effects):
+            remaining = [e for e in library if e.name not in config.names()]
+            if not crosstalk_configured and any(e.name == "loadcell_crosstalk" for e in remaining):
+                remaining = [self._configure_crosstalk(problem, e, config, coefs)
+                             if e.name == "loadcell_crosstalk" else e for e in remaining]
+                library = EffectLibrary([next((r for r in remaining if r.name == e.name), e) for e in library])
+                crosstalk_configured = True
+            linear = [e for e in remaining if not e.search and not e.needs_peak]
+            cands = self._linear_candidates(problem, config, coefs, names, linear, current)
+            peaks = peaks_of(config, current) if peaks_of is not None else []
+            for e in remaining:
+                if e.needs_peak:
+                    for pk in peaks:
+                        cands.append(self._nonlinear_candidate(problem, config, coefs, names, e, pk))
+                elif e.search:
+                    cands.append(self._nonlinear_candidate(problem, config, coefs, names, e))
+                if progress:
+                    progress(e.name)
+            if not cands:
+                break
+            level = s.alpha / len(cands)
+            table = []
+            for c in cands:
+                corr = self._null_correction(problem, c, coefs, current)
+                c.test, c.gain_c = judge(current, c.fit, c.fit.grams, hac, corr)
+                reasons = []
+                if c.test["p"] >= level:
+                    reasons.append(f"not significant (p={c.test['p']:.2g} >= {level:.2g})")
+                if c.gain_c.max() < s.min_gain:
+                    reasons.append(f"held-out gain {c.gain_c.max():.1%} < {s.min_gain:.0%}")
+                if not reasons and plausible is not None:
+                    ok, note = plausible(c, config, current)
+                    if not ok:
+                        reasons.append(note)
+                c.ok = not reasons
+                c.note = "; ".join(reasons)
+                table.append({"effect": c.effect.name, "label": c.label, "t": c.test["t"], "p": c.test["p"],
+                              "llr": c.test["llr"], "max_gain": float(c.gain_c.max()), "ok": c.ok, "note": c.note})
+            ok = [c for c in cands if c.ok]
+            if not ok:
+                break
+            best = max(ok, key=lambda c: c.test["llr"])
+            alternatives = [c.label for c in cands if c is not best and c.effect.name != best.effect.name
+                            and c.test["llr"] >= s.ambiguity_ratio * best.test["llr"] and c.test["llr"] > 0]
+            best = self._prune(problem, best, coefs)
+            before_c = _heldout_mse(current)
+            config, names = best.config, best.names
+            current = problem.fit(config, coefs, names)
+            coefs = current.coefs()
+            steps.append(Step(best, before_c, _heldout_mse(current), table, alternatives))
+        if s.refine and any(a.effect.search for a in config.actives):
+            config, current = self._refine(problem, config, coefs, names, current)
+        return SelectionResult(config, names, current, steps, table)
+
+    def _configure_crosstalk(self, problem, effect, config, coefs):
+        rs = problem.campaign.train_sets[0]
+        d = problem.design(rs, config, coefs)
+        return effect.configured(d.predict(coefs), rs.fit)
+
+    def _prune(self, problem, cand: Candidate, coefs) -> Candidate:
+        """Drop individually insignificant entries of a prunable effect (crosstalk, drift) and refit."""
+        e = cand.effect
+        if not e.prunable:
+            return cand
+        own = [n for n in cand.names if n.startswith(e.name + ".")]
+        se = cand.fit.stderr()
+        co = cand.fit.coefs()
+        zc = stats.norm.isf(self.settings.prune_alpha / (2 * max(len(own), 1)))
+        z = {n: abs(co[n]) / se[n] if se[n] > 0 else 0.0 for n in own}
+        keep = [n for n in own if z[n] >= zc] or [max(own, key=z.get)]
+        if len(keep) == len(own):
+            return cand
+        names = [n for n in cand.names if n not in own] + keep
+        f = problem.fit(cand.config, coefs, names)
+        return Candidate(e, cand.active, cand.config, names, f, cand.test, cand.gain_c, cand.profile, True,
+                         cand.note)
+
+    def _refine(self, problem, config, coefs, names, current):
+        """Re-search each nonlinear parameter with the others at their final values (one round)."""
+        for a in list(config.actives):
+            if not a.effect.search:
+                continue
+            rest = config.without(a.name)
+            nl, _ = self.search(problem, rest, coefs, names, a.effect, start=dict(a.nl))
+            config = rest.with_effect(Active(a.effect, nl))
+        current = problem.fit(config, coefs, names)
+        return config, current
+
+
+def _heldout_mse(f: lsq.Fit) -> np.ndarray:
+    h = f.grams.heldout
+    return f.sse_block_c[h].sum(axis=0) / max(f.grams.n[h].sum(), 1)
+
+
+CHANNELS = list(WRENCH_CHANNELS)

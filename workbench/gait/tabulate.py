@@ -1,0 +1,351 @@
+"""Tabulated leg wrenches: a leg force model made cheap for a whole population's rollout.
+
+Within one simulation each leg repeats its joint sinusoid; only the flow it sees changes, and
+slowly. So for every gait *shape* (see :mod:`workbench.gait.cycles`) the wrapper computes one
+steady cycle of the leg's wrench at each node of a flow-speed grid (nodes at k * ``flow_step``,
+made lazily: only the nodes some leg's flow reaches, all missing (shape, node) pairs of one
+fixed-point iteration in one model call), refines it once by Catmull-Rom interpolation (exact for
+quadratics, which the drag term |V|V is between its kinks) onto a fine grid, and during the
+rollout reads it bilinearly at each leg's phase and flow. The four legs of a gait share one
+table: they differ only in alpha, i.e. in where they read it.
+
+Two corrections keep it faithful to a direct rollout of a model with memory:
+
+* **flow memory**: the table assumes a constant flow over the model's memory; the rollout reads
+  it at the flow filtered by the model's own flow-weighting profile (measured once by probing the
+  model, :meth:`CycleSource.flow_kernel`), which is exact to first order in the flow's variation;
+* **start-up**: a direct rollout starts from a rest history (padded window, filter at rest), the
+  table from the periodic steady state; the difference, computed once at zero flow (the robot
+  starts at rest), is added to the first ticks.
+
+docs/gaits.md and the tests measure what is left (objectives within 1 % of direct rollouts).
+
+:class:`TabulatedLegModel` is a :class:`LegForceModel` bound to one :class:`GaitBatch`; it offers
+``flow_provider(motion)`` (the simulator's hook), which checks that ``motion`` is the batch's,
+so it plugs into :func:`workbench.hydro.simulator.simulate` unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from workbench.gait.cycles import CycleSource, Shapes
+from workbench.hydro.legmodel import LegForceModel
+from workbench.hydro.motion import LegMotion
+from workbench.hydro.simulator import GaitBatch
+
+TABULATION_MODES = ("auto", "always", "never")
+INTERPOLATIONS = ("cubic", "linear")
+
+
+@dataclass(frozen=True)
+class TabulationSettings:
+    """How leg wrenches are tabulated (``tabulation`` section of pipelines/gait.yaml)."""
+
+    #: auto: tabulate models that offer no ``flow_provider`` of their own (the EF has an exact one)
+    mode: str = "auto"
+    #: spacing of the flow-speed nodes (m/s); nodes sit at integer multiples
+    flow_step_mps: float = 0.05
+    #: phase samples per cycle for window nets (the FED-LSTM); other models sample at the sim tick
+    phase_samples: int = 48
+    #: cubic (Catmull-Rom) or linear between the model's samples, in phase and in flow speed
+    interpolation: str = "cubic"
+    #: the fine grid read bilinearly during the rollout: samples per cycle (at least) ...
+    fine_phase_samples: int = 192
+    #: ... and fine steps per flow node interval
+    fine_flow_factor: int = 4
+    #: warm-up before the tabulated cycle for models that are not window nets (s)
+    warmup_s: float = 1.0
+    #: read the table at the flow filtered by the model's flow-memory profile
+    flow_memory: bool = True
+    #: add the direct rollout's start-up transient (computed once, at rest) to the first ticks
+    startup_correction: bool = True
+
+    def __post_init__(self):
+        if self.mode not in TABULATION_MODES:
+            raise ValueError(f"tabulation.mode must be one of {TABULATION_MODES}, got {self.mode!r}")
+        if self.interpolation not in INTERPOLATIONS:
+            raise ValueError(f"tabulation.interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}")
+        if (self.flow_step_mps <= 0 or self.phase_samples < 4 or self.warmup_s < 0 or self.fine_flow_factor < 1
+                or self.fine_phase_samples < 1):
+            raise ValueError("tabulation needs flow_step_mps > 0, phase_samples >= 4, warmup_s >= 0 and "
+                             "positive fine grid sizes")
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any] | None) -> "TabulationSettings":
+        """From a parameter-file section (unknown keys refused)."""
+        doc = dict(doc or {})
+        unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"unknown tabulation setting(s) {unknown}")
+        return cls(**doc)
+
+
+def _kernel(t: np.ndarray, interpolation: str) -> tuple[np.ndarray, np.ndarray]:
+    """Tap offsets (K,) and weights (..., K) for fractional positions ``t`` in [0, 1]."""
+    if interpolation == "linear":
+        return np.array([0, 1]), np.stack([1.0 - t, t], axis=-1)
+    t2 = t * t
+    t3 = t2 * t
+    w = np.stack([(-t3 + 2 * t2 - t), (3 * t3 - 5 * t2 + 2), (-3 * t3 + 4 * t2 + t), (t3 - t2)], axis=-1) * 0.5
+    return np.array([-1, 0, 1, 2]), w
+
+
+def _resample(values: np.ndarray, axis: int, pos: np.ndarray, interpolation: str) -> np.ndarray:
+    """``values`` interpolated along ``axis`` at fractional sample positions ``pos`` (kept inside the taps)."""
+    n = values.shape[axis]
+    offs, _ = _kernel(np.zeros(1), interpolation)
+    lo, hi = -offs[0], n - 1 - offs[-1]              # first and last base index with all taps inside
+    base = np.clip(np.floor(pos).astype(np.int64), lo, max(lo, hi))
+    offs, w = _kernel(pos - base, interpolation)
+    out = 0.0
+    for k, off in enumerate(offs):
+        idx = np.clip(base + off, 0, n - 1)
+        shape = [1] * values.ndim
+        shape[axis] = pos.size
+        out = out + np.take(values, idx, axis=axis) * w[:, k].reshape(shape)
+    return out
+
+
+class CycleTable:
+    """Steady-cycle wrench samples of S shapes at flow nodes g_lo .. g_lo + G - 1, and their fine grid.
+
+    Coarse: ``values (S, G, J, 6)``, sample j at phase (j - 1) * phase_step[s]. Fine: ``fine (S, Gf,
+    Jf, 6)``, fine flow k at node position g_lo + k / Rf, fine phase m at coarse sample 1 + m / Rp.
+    """
+
+    def __init__(self, shapes: Shapes, source: CycleSource, settings: TabulationSettings):
+        self.shapes = shapes
+        self.source = source
+        self.settings = settings
+        self.step = float(settings.flow_step_mps)
+        self.phase_step = source.phase_step(shapes)
+        self.n_samples = source.n_samples(shapes)
+        self.n_j = int(self.n_samples.max())
+        self.rp = max(1, int(math.ceil(settings.fine_phase_samples * float(self.phase_step.max()) - 1e-9)))
+        self.rf = int(settings.fine_flow_factor)
+        self.g_lo = 0
+        self.values = np.zeros((len(shapes), 0, self.n_j, 6))
+        self.done = np.zeros((len(shapes), 0), bool)
+        self.fine = np.zeros((len(shapes), 0, (self.n_j - 3) * self.rp + 1, 6))
+        self.model_time_s = 0.0
+
+    @property
+    def n_nodes(self) -> int:
+        """Nodes in the current grid."""
+        return self.values.shape[1]
+
+    def ensure(self, lo: np.ndarray, hi: np.ndarray) -> bool:
+        """Make nodes lo[s] .. hi[s] (integers, inclusive) of every shape s available; True if any was new."""
+        g_hi_now = self.g_lo + self.n_nodes - 1
+        g_lo = int(lo.min()) if not self.n_nodes else min(int(lo.min()), self.g_lo)
+        g_hi = int(hi.max()) if not self.n_nodes else max(int(hi.max()), g_hi_now)
+        if not self.n_nodes or g_lo < self.g_lo or g_hi > g_hi_now:
+            size = g_hi - g_lo + 1
+            values = np.zeros((len(self.shapes), size, self.n_j, 6))
+            done = np.zeros((len(self.shapes), size), bool)
+            a = self.g_lo - g_lo
+            if self.n_nodes:
+                values[:, a:a + self.n_nodes] = self.values
+                done[:, a:a + self.n_nodes] = self.done
+            self.values, self.done, self.g_lo = values, done, g_lo
+        nodes = np.arange(self.n_nodes) + self.g_lo
+        want = (nodes[None, :] >= lo[:, None]) & (nodes[None, :] <= hi[:, None]) & ~self.done
+        s_idx, g_idx = np.nonzero(want)
+        if s_idx.size == 0:
+            return False
+        t0 = time.perf_counter()
+        out = self.source.cycles(self.shapes, s_idx, (g_idx + self.g_lo) * self.step, self.n_j)
+        self.model_time_s += time.perf_counter() - t0
+        self.values[s_idx, g_idx] = out
+        self.done[s_idx, g_idx] = True
+        self._refine()
+        return True
+
+    def _refine(self) -> None:
+        """Fine grid from the coarse samples (separable Catmull-Rom or linear), for bilinear reads."""
+        interp = self.settings.interpolation
+        pos_j = 1.0 + np.arange((self.n_j - 3) * self.rp + 1) / self.rp
+        by_phase = _resample(self.values, 2, pos_j, interp)
+        pos_g = np.arange((self.n_nodes - 1) * self.rf + 1) / self.rf
+        self.fine = np.ascontiguousarray(_resample(by_phase, 1, pos_g, interp))
+
+    def read(self, s_of_leg: np.ndarray, m0: np.ndarray, tp: np.ndarray, flow: np.ndarray) -> np.ndarray:
+        """Bilinear read (N, T, 6) at fine phase positions (m0 + tp) and flows ``flow`` (N, T)."""
+        n_gf, n_jf = self.fine.shape[1], self.fine.shape[2]
+        vf = (flow / self.step - self.g_lo) * self.rf
+        k0 = np.clip(np.floor(vf).astype(np.int64), 0, n_gf - 2)
+        tf = (vf - k0)[..., None]
+        flat = self.fine.reshape(-1, 6)
+        base = (s_of_leg[:, None] * n_gf + k0) * n_jf + m0
+        tpc = tp[..., None]
+        out = np.take(flat, base, axis=0) * ((1 - tpc) * (1 - tf))
+        out += np.take(flat, base + 1, axis=0) * (tpc * (1 - tf))
+        out += np.take(flat, base + n_jf, axis=0) * ((1 - tpc) * tf)
+        out += np.take(flat, base + n_jf + 1, axis=0) * (tpc * tf)
+        return out
+
+
+class TabulatedLegModel(LegForceModel):
+    """A leg force model served from per-shape cycle tables for one gait batch (see the module docstring).
+
+    Motions other than the batch's (and every motion when tabulation is off) go to the wrapped
+    model unchanged, so the wrapper is a faithful :class:`LegForceModel` everywhere. ``flow_kernel``
+    (from :meth:`CycleSource.flow_kernel`) may be passed in to probe the model once per run.
+    """
+
+    def __init__(self, inner: LegForceModel, gaits: GaitBatch, settings: TabulationSettings | None = None,
+                 *, sim_dt_s: float, flow_kernel: np.ndarray | None = None):
+        self.inner = inner
+        self.gaits = gaits
+        self.settings = settings or TabulationSettings()
+        self.name = getattr(inner, "name", "model")
+        self.sim_dt_s = float(sim_dt_s)
+        # legs (gait-major, b * 4 + leg, as GaitBatch.leg_motion orders them) -> distinct shapes
+        keys = np.stack([gaits.theta_h_min_deg.ravel(), gaits.theta_k_max_deg.ravel(),
+                         np.repeat(gaits.frequency_hz, 4)], axis=-1)
+        uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
+        self.leg_shape = inverse.ravel()
+        self.shapes = Shapes(uniq[:, 0], uniq[:, 1], uniq[:, 2], gaits.theta_h_max_deg, gaits.theta_k_min_deg,
+                             gaits.phi_rad)
+        self.source = CycleSource(inner, sim_dt_s=sim_dt_s, phase_samples=self.settings.phase_samples,
+                                  warmup_s=self.settings.warmup_s)
+        self.table = CycleTable(self.shapes, self.source, self.settings)
+        self._flow_kernel = flow_kernel
+        self.interp_time_s = 0.0
+        self.startup_time_s = 0.0
+        self.direct_calls = 0
+
+    @property
+    def tabulating(self) -> bool:
+        """Whether this wrapper uses its tables (mode and model kind)."""
+        mode = self.settings.mode
+        return mode == "always" or (mode == "auto" and not callable(getattr(self.inner, "flow_provider", None)))
+
+    @property
+    def flow_kernel(self) -> np.ndarray:
+        """The model's flow-memory weights (lag 0 first), probed on first use; [1] when switched off."""
+        if not self.settings.flow_memory:
+            return np.ones(1)
+        if self._flow_kernel is None:
+            self._flow_kernel = self.source.flow_kernel()
+        return np.asarray(self._flow_kernel, float)
+
+    # -- LegForceModel ---------------------------------------------------------------------------
+    def wrench(self, motion: LegMotion) -> np.ndarray:
+        """The tabulated wrench for the batch's motion, the wrapped model's for any other."""
+        if self.tabulating and self.is_batch_motion(motion):
+            return self.flow_provider(motion)(motion.flow_speed_mps)
+        self.direct_calls += 1
+        return self.inner.wrench(motion)
+
+    def flow_provider(self, motion: LegMotion) -> Callable[[np.ndarray], np.ndarray]:
+        """``flow (4B, T) -> wrench (4B, T, 6)`` for the batch's motion (the simulator's hook)."""
+        if not (self.tabulating and self.is_batch_motion(motion)):
+            fast = getattr(self.inner, "flow_provider", None)
+            if callable(fast):
+                return fast(motion)
+            from dataclasses import replace
+
+            def direct(flow):
+                self.direct_calls += 1
+                return self.inner.wrench(replace(motion, flow_speed_mps=flow))
+
+            return direct
+        return self._provider(motion)
+
+    def is_batch_motion(self, motion: LegMotion) -> bool:
+        """Is ``motion`` this batch's legs on ticks 0, dt, 2 dt, ... (the simulator's motion)?"""
+        n, t = motion.shape
+        if n != 4 * len(self.gaits) or t < 1:
+            return False
+        ref = self.gaits.leg_motion(np.arange(t) * motion.dt_s)
+        return bool(np.array_equal(ref.theta_h_deg, motion.theta_h_deg)
+                    and np.array_equal(ref.theta_k_deg, motion.theta_k_deg))
+
+    def describe(self) -> dict:
+        """The wrapped model's record plus the tabulation settings."""
+        return {**self.inner.describe(), "tabulation": asdict(self.settings), "tabulation_kind": self.source.kind}
+
+    def stats(self) -> dict:
+        """Work done so far: model calls, (shape, node) pairs, windows or ticks predicted, seconds."""
+        return {"kind": self.source.kind, "shapes": len(self.shapes), "model_calls": self.source.calls,
+                "pairs": self.source.pairs, "windows": self.source.windows, "nodes": self.table.n_nodes,
+                "model_time_s": self.table.model_time_s, "startup_time_s": self.startup_time_s,
+                "interp_time_s": self.interp_time_s, "direct_calls": self.direct_calls}
+
+    # -- the interpolating provider -------------------------------------------------------------
+    def _provider(self, motion: LegMotion) -> Callable[[np.ndarray], np.ndarray]:
+        g = self.gaits
+        table = self.table
+        n_ticks = motion.shape[1]
+        t = np.arange(n_ticks) * motion.dt_s
+        phase = np.mod(np.repeat(g.frequency_hz, 4)[:, None] * t[None, :]
+                       + g.alpha_rad.ravel()[:, None] / (2 * np.pi), 1.0)              # cycles in [0, 1)
+        s_of_leg = self.leg_shape
+        uf = phase / table.phase_step[s_of_leg, None] * table.rp                        # fine phase position
+        m0 = np.floor(uf).astype(np.int64)
+        tp = uf - m0
+        kernel = self.flow_kernel
+        offs, _ = _kernel(np.zeros(1), self.settings.interpolation)
+        n_shapes = len(self.shapes)
+        startup = self._startup(motion, s_of_leg, m0, tp) if self.settings.startup_correction else None
+
+        def provider(flow: np.ndarray) -> np.ndarray:
+            t_start = time.perf_counter()
+            t_model = table.model_time_s
+            flow = _filter_flow(np.asarray(flow, float), kernel)
+            g0 = np.floor(flow / table.step).astype(np.int64)
+            # nodes each shape needs: its legs' lowest and highest flows plus the kernel's reach
+            lo = np.full(n_shapes, np.iinfo(np.int64).max)
+            hi = np.full(n_shapes, np.iinfo(np.int64).min)
+            np.minimum.at(lo, s_of_leg, g0.min(axis=1) + offs[0])
+            np.maximum.at(hi, s_of_leg, g0.max(axis=1) + offs[-1])
+            table.ensure(lo, hi)
+            out = table.read(s_of_leg, m0, tp, flow)
+            if startup is not None:
+                out[:, :startup.shape[1]] += startup
+            self.interp_time_s += time.perf_counter() - t_start - (table.model_time_s - t_model)
+            return out
+
+        return provider
+
+    def _startup(self, motion: LegMotion, s_of_leg, m0, tp) -> np.ndarray:
+        """Direct minus tabulated wrench at rest over the first memory ticks, (4B, M, 6)."""
+        from dataclasses import replace
+
+        t0 = time.perf_counter()
+        m = min(motion.shape[1], self.source.memory_ticks)
+        offs, _ = _kernel(np.zeros(1), self.settings.interpolation)
+        n_shapes = len(self.shapes)
+        self.table.ensure(np.full(n_shapes, offs[0]), np.full(n_shapes, offs[-1]))
+        t_model = self.table.model_time_s
+        head = motion.rows(np.arange(motion.shape[0]))
+        head = replace(head, **{k: (None if v is None else v[:, :m]) for k, v in (
+            ("theta_h_deg", head.theta_h_deg), ("theta_k_deg", head.theta_k_deg), ("omega_h_dps", head.omega_h_dps),
+            ("omega_k_dps", head.omega_k_dps), ("alpha_h_dps2", head.alpha_h_dps2),
+            ("alpha_k_dps2", head.alpha_k_dps2))}, flow_speed_mps=np.zeros((motion.shape[0], m)))
+        direct = np.asarray(self.inner.wrench(head), float)
+        self.source.windows += head.shape[0] * m
+        tab = self.table.read(s_of_leg, m0[:, :m], tp[:, :m], np.zeros((motion.shape[0], m)))
+        self.startup_time_s += time.perf_counter() - t0 - (self.table.model_time_s - t_model)
+        return direct - tab
+
+
+def _filter_flow(flow: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Causal FIR filter of each row's flow history with weights ``kernel`` (lag 0 first); rest before t = 0."""
+    if kernel.size <= 1:
+        return flow
+    k = kernel.size
+    padded = np.concatenate([np.repeat(flow[:, :1], k - 1, axis=1), flow], axis=1)
+    out = np.zeros_like(flow)
+    n = flow.shape[1]
+    for lag, w in enumerate(kernel):
+        if w != 0.0:
+            out += w * padded[:, k - 1 - lag:k - 1 - lag + n]
+    return out

@@ -1,0 +1,462 @@
+"""Full-body swimming simulator (paper section III-E and IV-A): four legs, body drag, planar motion.
+
+Each leg runs the paper's joint sinusoid (equation 3) with its own phase alpha. A leg force model
+(any :class:`LegForceModel`: EF, FED-LSTM, augmented) predicts each leg's load-cell wrench from
+its joint history and the flow it sees; :class:`RobotParams` turns that into a wrench about the
+metacenter (HAA rotation by Rodrigues' formula, mirror image for right legs, p x F + R tau).
+The body integrates surge, sway and yaw in its own frame with added mass, body drag and
+cross-flow yaw damping, and the world position follows through the yaw rotation.
+
+Leg force models take whole histories, while the flow each leg sees depends on the motion they
+cause; :func:`simulate` therefore solves for the flow history by a relaxed fixed-point (Picard)
+iteration: predict all 4B leg wrenches at once with the current flow history, integrate the
+body, take the new flow history, repeat until it moves by less than ``tol_mps``. Everything is
+vectorised over the batch of gaits, so a whole NSGA-II population steps together, and it is
+deterministic (no randomness anywhere).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from workbench.contract.columns import WRENCH_CHANNELS
+from workbench.errors import ModelError
+from workbench.hydro.legmodel import LegForceModel
+from workbench.hydro.motion import JointSinusoid, LegMotion
+from workbench.hydro.robot import LEG_NAMES, RobotParams
+
+#: the paper's fixed gait constants (section IV): theta_h_max, theta_k_min, phi
+THETA_H_MAX_DEG = -100.0
+THETA_K_MIN_DEG = 80.0
+PHI_RAD = math.pi / 3
+#: the tunnel's control tick (65 Hz); history-based leg models were trained on it
+DEFAULT_DT_S = 1.0 / 65.0
+
+
+@dataclass(frozen=True)
+class GaitBatch:
+    """B gaits for the four legs (LF, RF, LH, RH), the optimiser's parameters (paper table II).
+
+    ``theta_h_min_deg`` and ``theta_k_max_deg`` are ``(B, 4)`` (the paper uses one value for all
+    legs; per-leg values are allowed), ``frequency_hz`` is ``(B,)``, ``alpha_rad`` ``(B, 4)``.
+    """
+
+    theta_h_min_deg: np.ndarray
+    theta_k_max_deg: np.ndarray
+    frequency_hz: np.ndarray
+    alpha_rad: np.ndarray
+    theta_h_max_deg: float = THETA_H_MAX_DEG
+    theta_k_min_deg: float = THETA_K_MIN_DEG
+    phi_rad: float = PHI_RAD
+
+    @classmethod
+    def from_arrays(cls, theta_h_min_deg, theta_k_max_deg, frequency_hz, alpha_rad, **fixed) -> "GaitBatch":
+        """Broadcast per-gait (B,) or per-leg (B, 4) values; scalars make a batch of one."""
+        alpha = np.atleast_2d(np.asarray(alpha_rad, float))
+        b = max(alpha.shape[0], np.size(frequency_hz), np.atleast_1d(theta_h_min_deg).shape[0],
+                np.atleast_1d(theta_k_max_deg).shape[0])
+
+        def legs(x):
+            x = np.asarray(x, float)
+            if x.ndim <= 1:
+                x = np.reshape(x, (-1, 1))
+            return np.ascontiguousarray(np.broadcast_to(x, (b, 4)), dtype=float)
+
+        freq = np.ascontiguousarray(np.broadcast_to(np.asarray(frequency_hz, float).reshape(-1), (b,)))
+        gaits = cls(legs(theta_h_min_deg), legs(theta_k_max_deg), freq, legs(alpha), **fixed)
+        if np.any(gaits.frequency_hz <= 0) or not all(np.all(np.isfinite(a)) for a in gaits._arrays()):
+            raise ValueError("gait parameters must be finite with positive frequency")
+        return gaits
+
+    @classmethod
+    def from_params(cls, params: Sequence[Mapping], **fixed) -> "GaitBatch":
+        """From gait-file ``params`` dicts (data contract section 5)."""
+        try:
+            return cls.from_arrays(
+                [p["theta_h_min_deg"] for p in params], [p["theta_k_max_deg"] for p in params],
+                [p["frequency_hz"] for p in params],
+                [p["alpha_rad"] if np.ndim(p["alpha_rad"]) else [p["alpha_rad"]] * 4 for p in params], **fixed)
+        except KeyError as exc:
+            raise ValueError(f"gait parameters lack {exc}") from None
+
+    def _arrays(self):
+        return (self.theta_h_min_deg, self.theta_k_max_deg, self.frequency_hz, self.alpha_rad)
+
+    def __len__(self) -> int:
+        return int(self.frequency_hz.shape[0])
+
+    def rows(self, idx) -> "GaitBatch":
+        """A sub-batch (index, slice or mask)."""
+        idx = np.atleast_1d(np.arange(len(self))[idx])
+        return replace(self, theta_h_min_deg=self.theta_h_min_deg[idx], theta_k_max_deg=self.theta_k_max_deg[idx],
+                       frequency_hz=self.frequency_hz[idx], alpha_rad=self.alpha_rad[idx])
+
+    def mirrored(self) -> "GaitBatch":
+        """The mirror-image gaits: left and right legs swap their parameters."""
+        swap = [1, 0, 3, 2]
+        return replace(self, theta_h_min_deg=self.theta_h_min_deg[:, swap],
+                       theta_k_max_deg=self.theta_k_max_deg[:, swap], alpha_rad=self.alpha_rad[:, swap])
+
+    def sinusoid(self) -> JointSinusoid:
+        """The paper's equation 3 with array parameters broadcasting to (B, 4, T)."""
+        return JointSinusoid(self.theta_h_min_deg[..., None], self.theta_h_max_deg, self.theta_k_min_deg,
+                             self.theta_k_max_deg[..., None], self.frequency_hz[:, None, None], self.phi_rad,
+                             self.alpha_rad[..., None])
+
+    def leg_motion(self, t_s: np.ndarray) -> LegMotion:
+        """All 4B legs' joint histories (rows ordered gait-major: b * 4 + leg), analytic rates, no flow."""
+        t = np.asarray(t_s, float)
+        th, tk, wh, wk, ah, ak = (np.broadcast_to(x, (len(self), 4, t.size)).reshape(4 * len(self), t.size)
+                                  for x in self.sinusoid().evaluate(t))
+        dt = float(t[1] - t[0]) if t.size > 1 else 1.0
+        return LegMotion(dt, th, tk, wh, wk, np.zeros_like(th), ah, ak)
+
+    def to_params(self) -> list[dict]:
+        """Gait-file ``params`` dicts (contract names; scalars where all legs agree)."""
+        out = []
+        for i in range(len(self)):
+            row = {}
+            for name, arr in (("theta_h_min_deg", self.theta_h_min_deg), ("theta_k_max_deg", self.theta_k_max_deg)):
+                vals = arr[i]
+                row[name] = float(vals[0]) if np.all(vals == vals[0]) else [float(v) for v in vals]
+            row["frequency_hz"] = float(self.frequency_hz[i])
+            row["alpha_rad"] = [float(a) for a in self.alpha_rad[i]]
+            out.append(row)
+        return out
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Simulated swims of a gait batch; arrays are (B, T) unless noted, tick 0 is the start at rest.
+
+    World frame: origin at the start, +y along the initial heading, +x to its right (the trial
+    frame of data contract section 2); yaw is counter-clockwise seen from above (positive turns
+    left). Body velocities are in the body frame (vx right, vy forward). Wrenches are in the body
+    frame about the metacenter, channels in contract order (fx, fy, fz, tx, ty, tz).
+    """
+
+    t_s: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    yaw_rad: np.ndarray
+    vx_mps: np.ndarray
+    vy_mps: np.ndarray
+    yaw_rate_rps: np.ndarray
+    #: (B, 4, T, 6) each leg's wrench, legs in LEG_NAMES order
+    leg_wrench: np.ndarray
+    #: (B, T, 6) body drag and yaw damping
+    body_wrench: np.ndarray
+    #: (B, 4, T) flow speed each leg saw (m/s, along its load cell's -y)
+    leg_flow_mps: np.ndarray
+    gaits: GaitBatch
+    model: str
+    iterations: int
+    #: (B,) last change of the flow history (m/s) and whether it fell below the tolerance
+    residual_mps: np.ndarray
+    converged: np.ndarray
+
+    @property
+    def total_wrench(self) -> np.ndarray:
+        """(B, T, 6) legs plus body."""
+        return self.leg_wrench.sum(axis=1) + self.body_wrench
+
+    @property
+    def leg_thrust_n(self) -> np.ndarray:
+        """(B, T) the four legs' summed force along the body's forward axis."""
+        return self.leg_wrench[..., 1].sum(axis=1)
+
+    def __len__(self) -> int:
+        return int(self.x_m.shape[0])
+
+    def to_frame(self, labels: Sequence[Mapping] | None = None):
+        """Long polars frame: one row per gait and tick (``gait`` index, optional label columns)."""
+        import polars as pl
+
+        b, t = self.x_m.shape
+        cols: dict[str, np.ndarray] = {
+            "gait": np.repeat(np.arange(b), t), "time_s": np.tile(self.t_s, b),
+            "x_m": self.x_m.ravel(), "y_m": self.y_m.ravel(), "yaw_rad": self.yaw_rad.ravel(),
+            "vx_mps": self.vx_mps.ravel(), "vy_mps": self.vy_mps.ravel(), "yaw_rate_rps": self.yaw_rate_rps.ravel(),
+        }
+        total = self.total_wrench
+        for k, ch in enumerate(WRENCH_CHANNELS):
+            cols[ch] = total[..., k].ravel()
+        for k, ch in enumerate(WRENCH_CHANNELS):
+            cols[f"body_{ch}"] = self.body_wrench[..., k].ravel()
+        for j, leg in enumerate(LEG_NAMES):
+            cols[f"{leg.lower()}_flow_mps"] = self.leg_flow_mps[:, j].ravel()
+            for k, ch in enumerate(WRENCH_CHANNELS):
+                cols[f"{leg.lower()}_{ch}"] = self.leg_wrench[:, j, :, k].ravel()
+        frame = pl.DataFrame(cols)
+        if labels is not None:
+            extra = {key: np.repeat(np.asarray([lab[key] for lab in labels]), t) for key in labels[0]}
+            frame = pl.DataFrame(extra).hstack(frame)
+        return frame
+
+
+# -- the pieces of one Picard iteration ---------------------------------------------------------
+def leg_wrench_provider(leg_model: LegForceModel, motion: LegMotion) -> Callable[[np.ndarray], np.ndarray]:
+    """The one place the simulator gets leg wrenches: a function ``flow (N, T) -> wrench (N, T, 6)``.
+
+    The joint motion is fixed during a simulation and only the flow changes between fixed-point
+    iterations, so a model may offer ``flow_provider(motion)`` that does the flow-independent work
+    once (the EF computes its kinematics once; a tabulated provider interpolates one cycle per
+    leg over a grid of flow speeds). Any other :class:`LegForceModel` is called whole each time.
+    """
+    fast = getattr(leg_model, "flow_provider", None)
+    inner = fast(motion) if callable(fast) else (
+        lambda flow: leg_model.wrench(replace(motion, flow_speed_mps=flow)))
+    name = getattr(leg_model, "name", "?")
+
+    def provider(flow: np.ndarray) -> np.ndarray:
+        out = np.asarray(inner(flow), float)
+        if out.shape != (*motion.shape, 6):
+            raise ModelError(f"leg model {name!r} returned shape {out.shape}, expected {(*motion.shape, 6)}")
+        if not np.all(np.isfinite(out)):
+            raise ModelError(f"leg model {name!r} returned non-finite wrenches")
+        return out
+
+    return provider
+
+
+def _planar_coefficients(robot: RobotParams) -> np.ndarray:
+    """(3, 4, 6): body fx, fy, tz about the metacenter as linear maps of each leg's load-cell wrench."""
+    a_force, a_torque = robot.leg_rotations()
+    p = robot.hip_positions_m()
+    k = np.zeros((3, 4, 6))
+    k[0, :, :3] = a_force[:, 0, :]
+    k[1, :, :3] = a_force[:, 1, :]
+    # tz = p_x F_y - p_y F_x + (A_tau tau)_z with F = A f
+    k[2, :, :3] = p[:, 0, None] * a_force[:, 1, :] - p[:, 1, None] * a_force[:, 0, :]
+    k[2, :, 3:] = a_torque[:, 2, :]
+    return k
+
+
+def _planar_sum(planar: np.ndarray, w_leg: np.ndarray) -> np.ndarray:
+    """(B, T, 3): the four legs' body fx, fy, tz, summed left-right pairwise (exact for mirror images)."""
+    k = np.ascontiguousarray(np.transpose(planar, (1, 2, 0)))  # (4, 6, 3)
+    acc = w_leg[:, 0] @ k[0] + w_leg[:, 1] @ k[1]
+    acc += w_leg[:, 2] @ k[2]
+    acc += w_leg[:, 3] @ k[3]
+    return acc
+
+
+def legs_to_body(robot: RobotParams, loadcell_wrench: np.ndarray) -> np.ndarray:
+    """Load-cell wrenches ``(B, 4, T, 6)`` -> body-frame wrenches about the metacenter (same shape).
+
+    F_mc = A F_leg and tau_mc = p x F_mc + A_tau tau_leg (paper equations 5-6), with A the HAA
+    rotation (and mirror) of each leg and p its load-cell origin from the metacenter.
+    """
+    a_force, a_torque = robot.leg_rotations()
+    f = np.einsum("lij,bltj->blti", a_force, loadcell_wrench[..., :3])
+    tau = np.einsum("lij,bltj->blti", a_torque, loadcell_wrench[..., 3:])
+    p = robot.hip_positions_m()[None, :, None, :]
+    return np.concatenate([f, np.cross(np.broadcast_to(p, f.shape), f) + tau], axis=-1)
+
+
+def leg_flow_speeds(robot: RobotParams, vx: np.ndarray, vy: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Flow speed each leg sees, ``(B, 4, T)``: its hip's velocity through still water along its +y.
+
+    A leg at hip h moves with v + omega x h; the tunnel's flow along the load cell's -y at speed U
+    is the same relative flow as the leg swimming along its +y at U. Cross-flow components are
+    not seen by the leg models (they were measured in axial flow only).
+    """
+    h = robot.hip_positions_m()
+    fwd = robot.leg_forward_axes()
+    vx, vy, r = (np.asarray(a)[:, None, :] for a in (vx, vy, r))
+    ux = vx - r * h[None, :, 1, None]
+    uy = vy + r * h[None, :, 0, None]
+    return ux * fwd[None, :, 0, None] + uy * fwd[None, :, 1, None]
+
+
+class BodyDrag:
+    """Body drag (fx, fy, tz) from body-frame velocities, with its constants prepared once.
+
+    Surge: the forward law at vy. Sway and yaw: the lateral law spread evenly over the body length
+    (cross-flow strips at Gauss-Legendre stations): a strip at station s moves sideways at
+    vx - r s, so yaw rotation meets lateral drag and is damped (the paper has no yaw damping;
+    without it any yaw torque spins the robot up for ever). At r = 0 the strips sum to the
+    lateral law at vx exactly. ``extra_yaw_damping_nms`` adds a linear term.
+
+    It runs once per tick for the whole batch, so it is written as two small matrix products:
+    velocities (B, 3) -> the speed of each drag element (B, 1 + n) -> drag -> (fx, fy, tz).
+    """
+
+    def __init__(self, robot: RobotParams):
+        n = robot.strip_stations if robot.body_length_m > 0 else 1
+        x, w = np.polynomial.legendre.leggauss(n)
+        s = robot.body_length_m / 2 * x
+        w = w / 2  # strip weights sum to one: the strips share the lateral law
+        self.stations_m = s
+        # element speeds: column 0 is the surge element, columns 1.. the lateral strips
+        self._p = np.zeros((3, 1 + n))
+        self._p[1, 0] = 1.0
+        self._p[0, 1:] = 1.0
+        self._p[2, 1:] = -s
+        fwd, lat = _law_terms(robot.forward_drag), _law_terms(robot.lateral_drag)
+        self._c2, self._c1, self._c0, self._v0, self._slope = (
+            np.array([f] + [lt] * n) for f, lt in zip(fwd, lat, strict=True))
+        self._linear = bool(np.any(self._v0 > 0))
+        # element forces -> (fx, fy, tz); a strip's force f (along x) at station s gives tz = -s f
+        self._w = np.zeros((1 + n, 3))
+        self._w[0, 1] = 1.0
+        self._w[1:, 0] = w
+        self._w[1:, 2] = -w * s
+        self._damp = robot.extra_yaw_damping_nms
+
+    def planar(self, v: np.ndarray) -> np.ndarray:
+        """Drag (B, 3) = (fx, fy, tz) for body velocities ``v`` (B, 3) = (vx, vy, r)."""
+        u = v @ self._p
+        speed = np.abs(u)
+        mag = (self._c2 * speed + self._c1) * speed + self._c0
+        if self._linear:
+            mag = np.where(speed < self._v0, self._slope * speed, mag)
+        out = (np.sign(u) * np.maximum(mag, 0.0)) @ self._w
+        out = -out
+        if self._damp:
+            out[:, 2] -= self._damp * v[:, 2]
+        return out
+
+    def __call__(self, vx, vy, r) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """fx, fy (N) and tz (N m) for velocity arrays of one shape."""
+        vx, vy, r = np.broadcast_arrays(*(np.asarray(a, float) for a in (vx, vy, r)))
+        f = self.planar(np.stack([vx.ravel(), vy.ravel(), r.ravel()], axis=-1))
+        return tuple(f[:, k].reshape(vx.shape) for k in range(3))
+
+
+def _law_terms(law) -> tuple[float, float, float, float, float]:
+    """(c2, c1, c0, v0, slope below v0) of a DragLaw; v0 = 0 when the polynomial runs down to rest."""
+    c2, c1, c0 = law.coefficients
+    v0 = law.speed_range_mps[0] if law.below_range == "linear_to_zero" and law.speed_range_mps[0] > 0 else 0.0
+    slope = float(law.polynomial(v0)) / v0 if v0 > 0 else 0.0
+    return c2, c1, c0, v0, slope
+
+
+def body_drag(robot: RobotParams, vx, vy, r) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Body drag (fx, fy, tz) of the robot at body-frame velocities (see :class:`BodyDrag`)."""
+    return BodyDrag(robot)(vx, vy, r)
+
+
+def integrate_body(robot: RobotParams, leg_planar: np.ndarray, dt_s: float) -> dict[str, np.ndarray]:
+    """Integrate the planar body motion from rest under the legs' force and yaw torque.
+
+    ``leg_planar`` is (B, T, 3): the legs' summed fx, fy (N) and tz (N m) in the body frame.
+    Returns (B, T) arrays x, y, yaw (world), vx, vy, r (body) and the body drag fx, fy, tz.
+    """
+    legs = np.ascontiguousarray(np.moveaxis(leg_planar, 1, 0))
+    b, t = leg_planar.shape[:2]
+    return integrate_stepwise(robot, lambda n, v: legs[n], t, b, dt_s)
+
+
+def integrate_stepwise(robot: RobotParams, leg_forces: Callable[[int, np.ndarray], np.ndarray], n_ticks: int,
+                       batch: int, dt_s: float) -> dict[str, np.ndarray]:
+    """The integrator itself, asking the legs' (B, 3) = (fx, fy, tz) tick by tick: ``leg_forces(n, v)``.
+
+    ``v`` is the (B, 3) body velocity (vx, vy, r) at tick n. Body-frame equations with added mass
+    (Kirchhoff): m_x dvx/dt = Fx + m_y r vy, m_y dvy/dt = Fy - m_x r vx,
+    I dr/dt = tz + (m_x - m_y) vx vy (Munk moment, optional), where F and tz sum the legs and the
+    body drag at tick n. Semi-implicit Euler: the velocities step with the forces at tick n, then
+    yaw and the world position step with the new velocities (rotated by the mid-step yaw).
+    Passing a callable lets an instantaneous leg model be stepped directly (the tests check the
+    fixed-point solution against that).
+    """
+    b, t = batch, n_ticks
+    mx, my, iz = robot.mass_x_kg, robot.mass_y_kg, robot.inertia_z_kgm2
+    munk = (mx - my) if robot.munk_moment else 0.0
+    # Coriolis and Munk terms as (B, 3) = coef * v[:, i] * v[:, j]
+    first, second = [1, 0, 0], [2, 2, 1]
+    coef = np.array([my, -mx, munk])
+    step = dt_s / np.array([mx, my, iz])
+    drag = BodyDrag(robot)
+    vel = np.zeros((t, b, 3))
+    pose = np.zeros((t, b, 3))
+    body = np.zeros((t, b, 3))
+    v = np.zeros((b, 3))
+    x = np.zeros(b)
+    y = np.zeros(b)
+    yaw = np.zeros(b)
+    half = 0.5 * dt_s
+    for n in range(t):
+        f = drag.planar(v)
+        body[n] = f
+        if n == t - 1:
+            break
+        f += leg_forces(n, v)
+        f += coef * v[:, first] * v[:, second]
+        v = v + step * f
+        r = v[:, 2]
+        mid = yaw + half * r
+        yaw = yaw + dt_s * r
+        c, s = np.cos(mid), np.sin(mid)
+        x = x + dt_s * (c * v[:, 0] - s * v[:, 1])
+        y = y + dt_s * (s * v[:, 0] + c * v[:, 1])
+        vel[n + 1] = v
+        pose[n + 1, :, 0], pose[n + 1, :, 1], pose[n + 1, :, 2] = x, y, yaw
+    out = {}
+    for arr, names in ((pose, ("x", "y", "yaw")), (vel, ("vx", "vy", "r")), (body, ("fx", "fy", "tz"))):
+        for k, name in enumerate(names):
+            out[name] = np.ascontiguousarray(arr[:, :, k].T)
+    return out
+
+
+# -- the simulation ------------------------------------------------------------------------------
+#: the ``simulation`` section of pipelines/robot.yaml: keyword arguments of :func:`simulate`
+SIM_SETTINGS = ("duration_s", "dt_s", "tol_mps", "max_iter", "relaxation")
+
+
+def simulation_settings(doc: Mapping | None) -> dict:
+    """Validated keyword arguments for :func:`simulate` from a parameter-file section."""
+    doc = dict(doc or {})
+    unknown = sorted(set(doc) - set(SIM_SETTINGS))
+    if unknown:
+        raise ValueError(f"unknown simulation setting(s) {unknown}; known: {list(SIM_SETTINGS)}")
+    return {k: (int(v) if k == "max_iter" else float(v)) for k, v in doc.items()}
+
+
+def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, duration_s: float = 20.0,
+             dt_s: float = DEFAULT_DT_S, tol_mps: float = 1e-4, max_iter: int = 40, relaxation: float = 0.8,
+             on_iteration: Callable[[int, np.ndarray], None] | None = None) -> Trajectory:
+    """Simulate every gait of the batch from rest for ``duration_s``; returns the :class:`Trajectory`.
+
+    The flow history of all 4B legs is found by relaxed Picard iteration: flow_{k+1} = flow_k +
+    relaxation (F(flow_k) - flow_k), starting from still water, per gait until its largest change
+    is below ``tol_mps``; a converged gait's flow is frozen, so a gait's result does not depend on
+    the rest of the batch. ``relaxation`` < 1 damps the overshoot of a plain iteration (the legs'
+    own drag falls as the robot speeds up). ``on_iteration(k, residual_per_gait)`` reports progress.
+    """
+    if duration_s <= 0 or dt_s <= 0:
+        raise ValueError("duration_s and dt_s must be positive")
+    if not 0 < relaxation <= 1:
+        raise ValueError("relaxation must be in (0, 1]")
+    b = len(gaits)
+    n_ticks = int(round(duration_s / dt_s)) + 1
+    t = np.arange(n_ticks) * dt_s
+    provider = leg_wrench_provider(leg_model, gaits.leg_motion(t))
+    planar = _planar_coefficients(robot)
+    flow = np.zeros((b, 4, n_ticks))
+    active = np.ones(b, bool)
+    residual = np.full(b, np.inf)
+    for k in range(1, max_iter + 1):
+        w_leg = provider(flow.reshape(4 * b, n_ticks)).reshape(b, 4, n_ticks, 6)
+        state = integrate_body(robot, _planar_sum(planar, w_leg), dt_s)
+        new_flow = leg_flow_speeds(robot, state["vx"], state["vy"], state["r"])
+        change = np.abs(new_flow - flow).max(axis=(1, 2))
+        residual = np.where(active, change, residual)
+        if on_iteration is not None:
+            on_iteration(k, residual.copy())
+        done = active & (change < tol_mps)
+        active &= ~done
+        if not active.any():
+            break
+        flow = np.where(active[:, None, None], flow + relaxation * (new_flow - flow), flow)
+    w_body = legs_to_body(robot, w_leg)
+    zeros = np.zeros_like(state["fx"])
+    body = np.stack([state["fx"], state["fy"], zeros, zeros, zeros, state["tz"]], axis=-1)
+    return Trajectory(t_s=t, x_m=state["x"], y_m=state["y"], yaw_rad=state["yaw"], vx_mps=state["vx"],
+                      vy_mps=state["vy"], yaw_rate_rps=state["r"], leg_wrench=w_body, body_wrench=body,
+                      leg_flow_mps=flow, gaits=gaits, model=getattr(leg_model, "name", "model"), iterations=k,
+                      residual_mps=residual, converged=residual < tol_mps)

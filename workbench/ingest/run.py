@@ -1,0 +1,177 @@
+"""One run from raw files to processed rows: read, check, align clocks, filter, resample, differentiate.
+
+Order of operations (docs/ingest.md):
+
+1. read the run's files (CSV, .bin or MCAP) and check each stream (timestamps, gaps, NaNs);
+2. fit the load cell's clock to the controller's from paired rising trigger edges;
+3. put the load cell on a uniform grid of its own clock (bridging dropped frames), low-pass it
+   with the zero-phase filter (this is also the anti-aliasing filter before the resample);
+4. map that grid onto the controller clock and interpolate onto the controller's ticks;
+5. joint angular velocities (tunnel) or carriage speed (towing) by a Savitzky-Golay derivative;
+6. ``time_s`` = controller time minus the run's first rising edge; the pre-run rest stretch
+   (``time_s < 0``) is kept, up to ``max_rest_s``, when the leg was still during it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import polars as pl
+
+from workbench.contract.campaign import Campaign, RunSpec
+from workbench.contract.columns import TUNNEL_MOTION_PARAMS, WRENCH_CHANNELS
+from workbench.errors import DataError
+from workbench.ingest.clock import align_clock
+from workbench.ingest.params import IngestParams
+from workbench.ingest.readers import read_run
+from workbench.ingest.schema import columns_for
+from workbench.ingest.streams import Stream, check_stream
+from workbench.signals.filters import (
+    derivative,
+    is_uniform,
+    lowpass,
+    lowpass_sampled,
+    resample_linear,
+    uniform_grid,
+)
+
+
+@dataclass
+class RunOutput:
+    """A processed run: its rows, its quality record and the hashes of the raw files it read."""
+
+    run_id: str
+    frame: pl.DataFrame
+    quality: dict
+    hashes: dict[str, str] = field(default_factory=dict)
+
+
+def angle_source(campaign: Campaign) -> str:
+    """``measured`` when the motion logs carry measured angles ([motion] feedback), else ``commanded``."""
+    return "measured" if campaign.motion is not None and campaign.motion.feedback else "commanded"
+
+
+def process_run(campaign: Campaign, run: RunSpec, params: IngestParams) -> RunOutput:
+    """Turn one run's raw files into processed rows on the controller's ticks."""
+    streams = read_run(campaign, run)
+    streams = {role: check_stream(s, params, run.id) for role, s in streams.items()}
+    lc = streams["loadcell"]
+    ctrl = streams["motion" if campaign.is_tunnel else "carriage"]
+    fit = align_clock(ctrl.time_s, ctrl.sync, lc.time_s, lc.sync, path=lc.path, run=run.id,
+                      max_residual_ms=params.max_edge_residual_ms)
+    flags: list[str] = []
+
+    # load cell: uniform grid on its own clock -> zero-phase low-pass -> controller ticks
+    raw = lc.column_matrix(WRENCH_CHANNELS)
+    saturated = _saturation(raw, campaign.loadcell.full_scale, params.saturation_fraction)
+    if is_uniform(lc.time_s, 0.05):
+        grid, w = lc.time_s, raw
+        dt = (grid[-1] - grid[0]) / (len(grid) - 1)
+    else:
+        grid, dt = uniform_grid(lc.time_s)
+        w = resample_linear(lc.time_s, raw, grid)
+    w = lowpass(w, 1.0 / dt, params.lowpass_cutoff_hz, params.lowpass_order)
+    grid_c = fit.to_controller(grid)
+
+    tc = ctrl.time_s
+    t_rel = tc - fit.start_s
+    keep = (tc >= grid_c[0]) & (tc <= grid_c[-1]) & (t_rel >= -params.max_rest_s)
+    cols: dict[str, np.ndarray] = {}
+    if campaign.is_tunnel:
+        th, tk = _angles(ctrl, campaign, params)
+        oh = derivative(tc, th, params.velocity_window_ticks, params.velocity_polyorder)
+        ok_ = derivative(tc, tk, params.velocity_window_ticks, params.velocity_polyorder)
+        rest = keep & (t_rel < 0)
+        if rest.any() and max(np.ptp(th[rest]), np.ptp(tk[rest])) > params.rest_tolerance_deg:
+            keep &= t_rel >= 0
+            flags.append("moving_before_start")
+        cols.update(theta_h_deg=th, theta_k_deg=tk, omega_h_dps=oh, omega_k_dps=ok_)
+    else:
+        pos = lowpass_sampled(tc, ctrl.values["position_m"], params.lowpass_cutoff_hz, params.lowpass_order)
+        speed = derivative(tc, pos, params.velocity_window_ticks, params.velocity_polyorder)
+        cols.update(position_m=pos, speed_mps=speed)
+    if not (keep & (t_rel >= 0)).any():
+        raise DataError("the load-cell log does not overlap the run on the controller clock", path=lc.path,
+                        run=run.id)
+    ticks = tc[keep]
+    wt = resample_linear(grid_c, w, ticks)
+    n = len(ticks)
+    data: dict[str, object] = {
+        "campaign_id": [campaign.id] * n,
+        "run_id": [run.id] * n,
+        "time_s": t_rel[keep],
+        "flow_speed_mps": np.full(n, run.flow_speed_mps),
+    }
+    for name, x in cols.items():
+        data[name] = x[keep]
+    for k, c in enumerate(WRENCH_CHANNELS):
+        data[c] = wt[:, k]
+    data["interpolated"] = np.zeros(n, dtype=bool)
+    if campaign.is_tunnel:
+        for p in TUNNEL_MOTION_PARAMS:
+            data[p] = np.full(n, float(run.params[p]))
+        data["cycles"] = pl.Series("cycles", [run.cycles] * n, dtype=pl.Int32)
+    else:
+        data["heading"] = [run.heading] * n
+    frame = pl.DataFrame({c: data[c] for c in columns_for(campaign.facility)})
+
+    duration = float(t_rel[keep][-1])
+    if campaign.is_tunnel and run.cycles and run.params.get("frequency_hz"):
+        expected = run.cycles / run.params["frequency_hz"]
+        if duration < expected - 2 * float(np.median(np.diff(tc))):
+            flags.append("incomplete")
+    if lc.dropped_frames:
+        flags.append("dropped_frames")
+    nan_filled = sum(s.nan_filled for s in streams.values())
+    if nan_filled:
+        flags.append("nan_filled")
+    if saturated:
+        flags.append("saturated")
+    rest_s = float(-t_rel[keep][0]) if t_rel[keep][0] < 0 else 0.0
+    quality = {
+        "run_id": run.id,
+        "status": "ok",
+        "source": "mcap" if run.mcap else lc.source,
+        "ticks": n,
+        "loadcell_samples": len(lc),
+        "controller_samples": len(ctrl),
+        "dropped_frames": int(lc.dropped_frames),
+        "dropped_bytes": int(lc.dropped_bytes),
+        "clock_offset_ms": round(fit.offset_s * 1e3, 6),
+        "clock_drift_ppm": round(fit.drift * 1e6, 4),
+        "edges_paired": fit.n_edges,
+        "edge_residual_max_ms": round(fit.residual_max_s * 1e3, 4),
+        "saturated": bool(saturated),
+        "saturated_samples": saturated,
+        "nan_filled": int(nan_filled),
+        "rest_s": round(rest_s, 6),
+        "duration_s": round(duration, 6),
+        "flags": flags,
+    }
+    hashes = {_rel(campaign, s): s.sha256 for s in streams.values()}
+    return RunOutput(run_id=run.id, frame=frame, quality=quality, hashes=hashes)
+
+
+def _rel(campaign: Campaign, s: Stream) -> str:
+    try:
+        return s.path.relative_to(campaign.root).as_posix()
+    except ValueError:
+        return s.path.as_posix()
+
+
+def _angles(ctrl: Stream, campaign: Campaign, params: IngestParams) -> tuple[np.ndarray, ...]:
+    """Joint angles on the controller ticks: measured ones (low-passed like the forces) or commanded."""
+    if angle_source(campaign) == "measured":
+        return tuple(lowpass_sampled(ctrl.time_s, ctrl.values[c], params.lowpass_cutoff_hz, params.lowpass_order)
+                     for c in ("hfe_meas_deg", "kfe_meas_deg"))
+    return ctrl.values["hfe_cmd_deg"], ctrl.values["kfe_cmd_deg"]
+
+
+def _saturation(raw: np.ndarray, full_scale, fraction: float) -> dict[str, int]:
+    """Samples per channel at or beyond ``fraction`` of full scale (flagged, not refused)."""
+    if not full_scale:
+        return {}
+    limit = fraction * np.asarray(full_scale, float)
+    hits = (np.abs(raw) >= limit).sum(axis=0)
+    return {c: int(h) for c, h in zip(WRENCH_CHANNELS, hits, strict=True) if h}

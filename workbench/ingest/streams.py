@@ -1,0 +1,109 @@
+"""What every reader returns: one device's samples on its own clock, checked against the contract.
+
+A :class:`Stream` is a device log (load cell, leg controller or carriage) after parsing: time
+stamps on the device's clock, the trigger level, named value columns. :func:`check_stream`
+applies the rules every source shares (no empty logs, strictly increasing time, no gaps,
+0/1 trigger levels, short NaN runs bridged and longer ones refused), naming the offending
+line, frame or message through the stream's ``locate``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from workbench.errors import ContractError, DataError
+from workbench.ingest.params import IngestParams
+
+
+@dataclass(frozen=True)
+class Stream:
+    """One device's log: ``time_s`` on its own clock, ``sync`` (0/1), and value columns."""
+
+    role: str
+    path: Path
+    time_s: np.ndarray
+    sync: np.ndarray
+    values: dict[str, np.ndarray]
+    #: maps a sample index to where it is in the file ("line 17", "frame 3 (byte 96)", ...)
+    locate: Callable[[int], str] = field(default=lambda i: f"sample {i}", compare=False, repr=False)
+    source: str = "csv"
+    sha256: str = ""
+    dropped_bytes: int = 0
+    dropped_frames: int = 0
+    nan_filled: int = 0
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    def column_matrix(self, names) -> np.ndarray:
+        """Stack the named value columns into an (N, C) array."""
+        return np.column_stack([self.values[n] for n in names])
+
+
+def csv_line(i: int) -> str:
+    """Where data row ``i`` sits in a CSV file with one header line."""
+    return f"line {i + 2}"
+
+
+def check_stream(s: Stream, params: IngestParams, run: str | None) -> Stream:
+    """Apply the shared rules; return the stream with short NaN runs bridged.
+
+    Raises :class:`DataError` or :class:`ContractError` naming the file, the run and where.
+    """
+    def fail(cls, fault, i=None, hint=None):
+        raise cls(fault, path=s.path, run=run, where=None if i is None else s.locate(int(i)), hint=hint)
+
+    n = len(s.time_s)
+    if n == 0:
+        fail(DataError, f"no {s.role} samples")
+    if n < 3:
+        fail(DataError, f"only {n} {s.role} sample(s)")
+    bad = ~np.isfinite(s.time_s)
+    if bad.any():
+        fail(DataError, "missing or non-finite time_s", np.argmax(bad))
+    sync = s.sync
+    badsync = ~((sync == 0) | (sync == 1))
+    if badsync.any():
+        i = int(np.argmax(badsync))
+        fail(ContractError, f"sync must be 0 or 1, got {sync[i]!r}", i)
+    d = np.diff(s.time_s)
+    if (d <= 0).any():
+        i = int(np.argmax(d <= 0))
+        if d[i] == 0:
+            fail(DataError, f"duplicated timestamp time_s = {s.time_s[i]:.6f} (same as the previous sample)", i + 1)
+        fail(DataError, f"non-monotonic timestamps: time_s goes back from {s.time_s[i]:.6f} to {s.time_s[i + 1]:.6f}",
+             i + 1)
+    med = float(np.median(d))
+    limit = max(params.max_gap_s, params.gap_factor * med)
+    if (d > limit).any():
+        i = int(np.argmax(d > limit))
+        fail(DataError, f"gap of {d[i]:.3f} s in time_s after {s.time_s[i]:.6f} (limit {limit:.3f} s)", i + 1)
+    values, filled = {}, 0
+    for name, x in s.values.items():
+        x, k = _bridge_nans(x, params.max_nan_run, lambda a, b, name=name: fail(
+            DataError, f"NaN stretch of {b - a} samples in {name} (up to {params.max_nan_run} are bridged)", a))
+        values[name] = x
+        filled += k
+    return replace(s, values=values, nan_filled=s.nan_filled + filled, sync=sync.astype(np.int8))
+
+
+def _bridge_nans(x: np.ndarray, max_run: int, fail) -> tuple[np.ndarray, int]:
+    x = np.asarray(x, float)
+    bad = ~np.isfinite(x)
+    if not bad.any():
+        return x, 0
+    edges = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    lengths = stops - starts
+    worst = int(np.argmax(lengths))
+    if lengths[worst] > max_run or starts[0] == 0 and bad.all():
+        fail(int(starts[worst]), int(stops[worst]))
+    idx = np.arange(len(x))
+    good = ~bad
+    x = x.copy()
+    x[bad] = np.interp(idx[bad], idx[good], x[good])
+    return x, int(bad.sum())

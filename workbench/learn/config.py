@@ -1,0 +1,248 @@
+"""The learning configuration: one frozen dataclass tree read from ``pipelines/learn.yaml``.
+
+``train(cfg)``, the Optuna objective and the tests all take a :class:`LearnConfig`; the CLI
+builds it from the YAML file plus ``--set key=value`` overrides (dotted keys, YAML values), and
+the tests build the real one and shrink it. Unknown keys are refused, so a typo in the YAML is
+an error, not a silently ignored knob.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from workbench.errors import ContractError
+
+#: model variants: recurrent backbones, a window MLP, and the EF-residual hybrid
+VARIANTS = ("lstm", "gru", "mlp", "ef_residual")
+#: model inputs per tick, in order (paper: V_flow, theta_H, theta_K, omega_H, omega_K)
+FEATURES = ("flow_speed_mps", "theta_h_deg", "theta_k_deg", "omega_h_dps", "omega_k_dps")
+
+
+@dataclass(frozen=True)
+class SplitCfg:
+    """7:1:2 split by motion-parameter set, seeded; ``pin_test`` forces one matching set each into test."""
+
+    fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)
+    seed: int = 0
+    #: partial parameter specs (e.g. the paper's figure sets); one matching set of each goes to test
+    pin_test: tuple[Mapping[str, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class DataCfg:
+    """Where the windows come from and how they are drawn."""
+
+    paths: tuple[str, ...] = ()
+    seq_len: int = 16
+    split: SplitCfg = field(default_factory=SplitCfg)
+    #: training windows drawn at random (without replacement) per epoch; None: every window
+    train_windows_per_epoch: int | None = None
+    batch_size: int = 256
+    eval_batch_size: int = 4096
+
+
+@dataclass(frozen=True)
+class ModelCfg:
+    """The network: paper FED-LSTM = lstm, 2 layers of 64, dropout 0.21."""
+
+    variant: str = "lstm"
+    hidden_size: int = 64
+    num_layers: int = 2
+    dropout: float = 0.21
+    #: backbone of the ef_residual hybrid (lstm | gru | mlp)
+    backbone: str = "lstm"
+
+
+@dataclass(frozen=True)
+class OptimCfg:
+    """Adam with the learning rate reduced on validation-loss plateaus, kept within [lr_min, lr_max]."""
+
+    lr: float = 0.01
+    lr_min: float = 1e-3
+    lr_max: float = 1e-1
+    weight_decay: float = 0.0
+    plateau_factor: float = 0.5
+    plateau_patience: int = 1
+    grad_clip: float = 1.0
+
+
+@dataclass(frozen=True)
+class TrainerCfg:
+    """Epochs, stopping and seeding."""
+
+    max_epochs: int = 20
+    early_stop_patience: int = 4
+    max_time_s: float | None = None
+    seed: int = 0
+    #: torch intra-op threads while training (None: torch's default, one per core). One thread is
+    #: the default: on a shared 2-core machine two threads run up to 10x slower (measured, docs)
+    torch_threads: int | None = 1
+
+
+@dataclass(frozen=True)
+class TrackingCfg:
+    """MLflow: where runs go, how they are named, what gets registered."""
+
+    enabled: bool = True
+    tracking_uri: str | None = None
+    experiment: str = "fed-lstm"
+    run_name: str | None = None
+    registered_model: str = "fed-lstm"
+    alias: str = "champion"
+    register: bool = True
+    dvc_stage: str | None = None
+
+
+@dataclass(frozen=True)
+class LearnConfig:
+    """Everything ``train(cfg)`` needs."""
+
+    data: DataCfg = field(default_factory=DataCfg)
+    model: ModelCfg = field(default_factory=ModelCfg)
+    optim: OptimCfg = field(default_factory=OptimCfg)
+    trainer: TrainerCfg = field(default_factory=TrainerCfg)
+    tracking: TrackingCfg = field(default_factory=TrackingCfg)
+    #: folder the trained model is written to (weights, config, normalisation, split, metrics); None: none
+    model_dir: str | None = None
+
+    def validate(self) -> "LearnConfig":
+        """Refuse values no model can train with (one-line ContractError naming the key)."""
+        m, d, o = self.model, self.data, self.optim
+        if m.variant not in VARIANTS:
+            raise ContractError(f"model.variant {m.variant!r} unknown", hint=f"one of {', '.join(VARIANTS)}")
+        if m.backbone not in ("lstm", "gru", "mlp"):
+            raise ContractError(f"model.backbone {m.backbone!r} unknown", hint="lstm, gru or mlp")
+        if d.seq_len < 1 or m.hidden_size < 1 or m.num_layers < 1 or d.batch_size < 1:
+            raise ContractError("data.seq_len, model.hidden_size, model.num_layers and data.batch_size must be >= 1")
+        if not 0 <= m.dropout < 1:
+            raise ContractError(f"model.dropout {m.dropout} outside [0, 1)")
+        if not 0 < o.lr_min <= o.lr_max:
+            raise ContractError(f"optim.lr_min {o.lr_min} / lr_max {o.lr_max} inconsistent")
+        fr = d.split.fractions
+        if len(fr) != 3 or min(fr) < 0 or abs(sum(fr) - 1) > 1e-6 or fr[0] == 0:
+            raise ContractError(f"data.split.fractions {list(fr)} must be three non-negative numbers summing to 1")
+        return self
+
+    def to_dict(self) -> dict:
+        """Plain nested dict (JSON/YAML-serialisable)."""
+        return _plain(dataclasses.asdict(self))
+
+    def with_overrides(self, overrides: Sequence[str] | Mapping[str, Any]) -> "LearnConfig":
+        """A copy with dotted-key overrides applied (``["model.hidden_size=96"]`` or a mapping)."""
+        import yaml
+
+        items = overrides.items() if isinstance(overrides, Mapping) else [_split_override(s) for s in overrides]
+        doc = self.to_dict()
+        for key, value in items:
+            if isinstance(value, str) and not isinstance(overrides, Mapping):
+                value = yaml.safe_load(value)
+            node = doc
+            parts = key.split(".")
+            for p in parts[:-1]:
+                if not isinstance(node.get(p), dict):
+                    raise ContractError(f"unknown configuration key {key!r}")
+                node = node[p]
+            if parts[-1] not in node:
+                raise ContractError(f"unknown configuration key {key!r}")
+            node[parts[-1]] = value
+        return config_from_dict(doc)
+
+
+def _split_override(s: str) -> tuple[str, str]:
+    if "=" not in s:
+        raise ContractError(f"override {s!r} is not key=value", hint="e.g. --set model.hidden_size=96")
+    k, _, v = s.partition("=")
+    return k.strip(), v
+
+
+def _plain(x):
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    return x
+
+
+def _build(cls, doc: Mapping[str, Any] | None, where: str):
+    doc = dict(doc or {})
+    kwargs = {}
+    hints = {f.name: f for f in dataclasses.fields(cls)}
+    for key, value in doc.items():
+        if key not in hints:
+            raise ContractError(f"unknown configuration key '{where}{key}'",
+                                hint=f"known: {', '.join(hints)}")
+        sub = _SUBSECTIONS.get((cls, key))
+        if sub is not None:
+            value = _build(sub, value, f"{where}{key}.")
+        elif isinstance(value, list):
+            value = tuple(dict(v) if isinstance(v, Mapping) else v for v in value)
+        kwargs[key] = value
+    return cls(**kwargs)
+
+
+_SUBSECTIONS = {
+    (LearnConfig, "data"): DataCfg,
+    (LearnConfig, "model"): ModelCfg,
+    (LearnConfig, "optim"): OptimCfg,
+    (LearnConfig, "trainer"): TrainerCfg,
+    (LearnConfig, "tracking"): TrackingCfg,
+    (DataCfg, "split"): SplitCfg,
+}
+
+
+def config_from_dict(doc: Mapping[str, Any]) -> LearnConfig:
+    """Build and validate a :class:`LearnConfig` from a nested mapping (the YAML's ``train`` section)."""
+    return _build(LearnConfig, doc, "").validate()
+
+
+def load_config(path: str | Path = "pipelines/learn.yaml", overrides: Sequence[str] = ()) -> LearnConfig:
+    """The ``train`` section of the learning parameter file, with overrides applied."""
+    from workbench.project import load_params
+
+    cfg = config_from_dict(load_params(path, "train"))
+    return cfg.with_overrides(overrides) if overrides else cfg
+
+
+def load_section(path: str | Path, section: str) -> dict:
+    """Another section of the learning parameter file (``tune``, ``evaluate``) as a dict."""
+    from workbench.project import load_params
+
+    return dict(load_params(path, section) or {})
+
+
+def cli_config(args) -> LearnConfig:
+    """The training configuration a verb's common options describe (``--config``, ``--data``, ``--set``, ...)."""
+    cfg = load_config(args.config, getattr(args, "set", None) or ())
+    over: dict[str, Any] = {}
+    if getattr(args, "data", None):
+        over["data.paths"] = list(args.data)
+    if getattr(args, "tracking_uri", None):
+        over["tracking.tracking_uri"] = args.tracking_uri
+    if getattr(args, "experiment", None):
+        over["tracking.experiment"] = args.experiment
+    if getattr(args, "no_mlflow", False):
+        over["tracking.enabled"] = False
+    if getattr(args, "dvc_stage", None):
+        over["tracking.dvc_stage"] = args.dvc_stage
+    cfg = cfg.with_overrides(over) if over else cfg
+    if not cfg.data.paths:
+        raise ContractError("no processed data given", path=args.config,
+                            hint="pass --data datasets/processed/<campaign>.parquet or set train.data.paths")
+    return cfg
+
+
+def add_common_options(p, *, data_required: bool = False) -> None:
+    """``--config``, ``--data``, ``--set``, ``--tracking-uri``, ``--experiment``, ``--no-mlflow``, ``--dvc-stage``."""
+    p.add_argument("--config", default="pipelines/learn.yaml", help="learning parameter file (default: %(default)s)")
+    p.add_argument("--data", nargs="+", metavar="PARQUET", required=data_required,
+                   help="processed tunnel Parquet file(s), one or more campaigns (contract section 3)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a key of the file's train section, e.g. --set model.variant=gru (repeatable)")
+    p.add_argument("--tracking-uri", help="MLflow tracking URI (default: MLFLOW_TRACKING_URI, else sqlite:///mlflow.db "
+                                          "in the project); e.g. http://mlflow.lab:5000")
+    p.add_argument("--experiment", help="MLflow experiment (default: the file's tracking.experiment)")
+    p.add_argument("--no-mlflow", action="store_true", help="do not record in MLflow (and do not register)")
+    p.add_argument("--dvc-stage", help="dvc_stage tag of the MLflow runs (default: DVC_STAGE, else 'manual')")

@@ -1,0 +1,134 @@
+"""Train/validation/test split by motion-parameter set, never by window.
+
+Overlapping windows of one run, and runs of one parameter set at other flow speeds, are nearly
+the same data: splitting them apart would leak the test set into training. So the unit of the
+split is the parameter set (the run's motion parameters): every run of a set, at every flow
+speed, measured or interpolated, lands in the same split. The assignment depends only on the
+seed and the sorted set keys, so the same campaign splits the same way whatever the row order,
+and it is recorded (JSON) with the model and read back by ``workbench evaluate``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from workbench.errors import ContractError, DataError
+from workbench.learn.windows import PARAM_DECIMALS, RunTable, set_key, set_label
+
+SPLITS = ("train", "val", "test")
+SCHEMA = "workbench/learn-split@1"
+
+
+@dataclass(frozen=True)
+class ParameterSplit:
+    """Which split each parameter set belongs to."""
+
+    seed: int
+    fractions: tuple[float, float, float]
+    param_columns: tuple[str, ...]
+    #: set key -> "train" | "val" | "test"
+    assignment: Mapping[tuple, str]
+    #: set key -> parameter values (contract names)
+    params: Mapping[tuple, Mapping[str, float]]
+    pin_test: tuple[Mapping[str, float], ...] = field(default=())
+
+    def split_of(self, params: Mapping[str, float]) -> str | None:
+        """The split of a parameter set (None when the set is unknown to this split)."""
+        try:
+            return self.assignment.get(set_key(params, self.param_columns))
+        except KeyError:
+            return None
+
+    def sets(self, name: str) -> list[tuple]:
+        """Keys of the sets in one split, sorted."""
+        return sorted(k for k, s in self.assignment.items() if s == name)
+
+    def runs(self, table: RunTable, name: str, *, measured_only: bool) -> np.ndarray:
+        """Indices of the table's runs in one split (interpolated runs dropped when ``measured_only``)."""
+        keys = [tuple(k) for k in table.runs["set_key"].to_list()]
+        interp = table.runs["interpolated"].to_numpy()
+        out = [r for r, k in enumerate(keys) if self.assignment.get(k) == name and not (measured_only and interp[r])]
+        return np.asarray(out, dtype=np.int64)
+
+    def counts(self) -> dict[str, int]:
+        """Parameter sets per split."""
+        return {s: sum(1 for v in self.assignment.values() if v == s) for s in SPLITS}
+
+    def to_dict(self, table: RunTable | None = None) -> dict:
+        """JSON record (with each set's runs when a table is given)."""
+        runs_of: dict[tuple, list[str]] = {}
+        if table is not None:
+            for row in table.runs.iter_rows(named=True):
+                tag = f"{row['campaign_id']}/{row['run_id']}@{row['flow_speed_mps']:.3g}"
+                if row["interpolated"]:
+                    tag += " (interpolated)"
+                runs_of.setdefault(tuple(row["set_key"]), []).append(tag)
+        sets = [{"label": set_label(self.params[k]), "split": self.assignment[k],
+                 "params": dict(self.params[k]), **({"runs": runs_of.get(k, [])} if table is not None else {})}
+                for k in sorted(self.assignment)]
+        return {"schema": SCHEMA, "unit": "motion-parameter set", "seed": self.seed,
+                "fractions": list(self.fractions), "param_columns": list(self.param_columns),
+                "pin_test": [dict(p) for p in self.pin_test], "counts": self.counts(), "sets": sets}
+
+    @classmethod
+    def from_dict(cls, d: Mapping, path: str | None = None) -> "ParameterSplit":
+        """Read a record written by :meth:`to_dict`."""
+        if d.get("schema") != SCHEMA:
+            raise ContractError(f"not a split record (schema {d.get('schema')!r}, expected {SCHEMA!r})", path=path)
+        cols = tuple(d["param_columns"])
+        assignment, params = {}, {}
+        for s in d["sets"]:
+            if s["split"] not in SPLITS:
+                raise ContractError(f"unknown split {s['split']!r}", path=path)
+            k = set_key(s["params"], cols)
+            assignment[k] = s["split"]
+            params[k] = {c: float(s["params"][c]) for c in cols}
+        return cls(int(d["seed"]), tuple(d["fractions"]), cols, assignment, params,
+                   tuple(d.get("pin_test", ())))
+
+
+def _matches(params: Mapping[str, float], spec: Mapping[str, float]) -> bool:
+    return all(abs(float(params[k]) - float(v)) < 10 ** -PARAM_DECIMALS * 10 for k, v in spec.items())
+
+
+def split_parameter_sets(table: RunTable, fractions: Sequence[float] = (0.7, 0.1, 0.2), seed: int = 0,
+                         pin_test: Sequence[Mapping[str, float]] = ()) -> ParameterSplit:
+    """Assign every parameter set of the table to train, val or test (seeded, reproducible).
+
+    Each spec in ``pin_test`` (e.g. ``{"theta_h_min_deg": 10, "theta_k_max_deg": -20}``, the
+    paper's figure sets) sends one matching set (the seed picks which) to test, so the figures
+    can show held-out sets; the pinned sets count towards the test share.
+    """
+    cols = table.param_columns
+    params: dict[tuple, dict] = {}
+    for row in table.runs.select(list(cols)).iter_rows(named=True):
+        params.setdefault(set_key(row, cols), {c: float(row[c]) for c in cols})
+    keys = sorted(params)
+    n = len(keys)
+    if n < 3:
+        raise DataError(f"only {n} parameter set(s); a 7:1:2 split by parameter set needs at least 3",
+                        hint="add runs with other motion parameters")
+    for spec in pin_test:
+        unknown = [k for k in spec if k not in cols]
+        if unknown:
+            raise ContractError(f"data.split.pin_test names unknown parameters {unknown}")
+    rng = np.random.default_rng(seed)
+    pinned: list[tuple] = []
+    for spec in pin_test:
+        cand = [k for k in keys if _matches(params[k], spec) and k not in pinned]
+        if cand:
+            pinned.append(cand[int(rng.integers(len(cand)))])
+    rest = [keys[i] for i in rng.permutation(n) if keys[i] not in pinned]
+    n_test = max(int(round(fractions[2] * n)), len(pinned), 1 if fractions[2] > 0 else 0)
+    n_val = max(int(round(fractions[1] * n)), 1 if fractions[1] > 0 else 0)
+    n_train = n - n_test - n_val
+    if n_train < 1:
+        raise DataError(f"{n} parameter sets are too few for fractions {list(fractions)}")
+    assignment = {k: "test" for k in pinned}
+    for i, k in enumerate(rest):
+        assignment[k] = "train" if i < n_train else ("val" if i < n_train + n_val else "test")
+    return ParameterSplit(seed, tuple(float(f) for f in fractions), cols, assignment, params,
+                          tuple(dict(p) for p in pin_test))

@@ -1,0 +1,223 @@
+"""``train(cfg) -> (metrics, objects)``: one configuration, from processed Parquet to a scored, saved model.
+
+The one function the CLI (``workbench train``), the Optuna objective and the tests call. It reads
+the data (or takes prepared data, so a search reads it once per worker), splits it by parameter
+set, trains with Lightning, keeps the best-validation weights, scores the model and the EF on
+the held-out test sets through the leg force model interface, writes the model folder, and
+records everything in MLflow (and registers the model) when tracking is enabled.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import tempfile
+import time
+from contextlib import contextmanager
+from datetime import timedelta
+from pathlib import Path
+from typing import Callable, Sequence
+
+from workbench.learn.config import LearnConfig
+
+#: extra test metrics logged per channel
+_LOG_CHANNELS = ("fx_n", "fy_n", "fz_n", "tx_nm", "ty_nm", "tz_nm")
+
+
+def _quiet_lightning() -> None:
+    for name in ("lightning.pytorch", "lightning.fabric", "lightning"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    import warnings
+
+    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
+
+
+@contextmanager
+def _mlflow_run(cfg: LearnConfig, tags: dict, run_name: str, parent_run_id: str | None):
+    """An MLflow run that ends KILLED when an Optuna trial is pruned, FAILED on any other error."""
+    if not cfg.tracking.enabled:
+        yield None
+        return
+    import mlflow
+
+    from workbench.learn.tracking import setup
+
+    setup(cfg.tracking.tracking_uri, cfg.tracking.experiment)
+    nested = parent_run_id is not None or mlflow.active_run() is not None
+    run = mlflow.start_run(run_name=run_name, tags=tags, nested=nested, parent_run_id=parent_run_id)
+    status = "FINISHED"
+    try:
+        yield run
+    except BaseException as exc:
+        status = "KILLED" if type(exc).__name__ in ("TrialPruned", "KeyboardInterrupt") else "FAILED"
+        raise
+    finally:
+        mlflow.end_run(status=status)
+
+
+def default_run_name(cfg: LearnConfig) -> str:
+    """``<variant> <hidden>x<layers> L<seq_len>`` unless the configuration names the run."""
+    m = cfg.model
+    variant = m.variant if m.variant != "ef_residual" else f"ef_residual({m.backbone})"
+    return cfg.tracking.run_name or f"{variant} {m.hidden_size}x{m.num_layers} L{cfg.data.seq_len}"
+
+
+def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: Callable[[str], None] | None = None,
+          parent_run_id: str | None = None, extra_tags: dict | None = None, kind: str = "train",
+          log_model: bool = True) -> tuple[dict, dict]:
+    """Train one configuration; returns ``(metrics, objects)``.
+
+    ``prepared``: a :class:`~workbench.learn.datamodule.PreparedData` to reuse (else read
+    ``cfg.data.paths``); ``callbacks``: extra Lightning callbacks (e.g. Optuna pruning);
+    ``report``: where per-epoch lines go; ``parent_run_id``: MLflow parent (tune trials).
+    ``objects`` holds ``model`` (the :class:`LegForceModel`), ``module``, ``datamodule``,
+    ``prepared``, ``history`` and, when tracked, ``run_id`` and ``model_version``.
+    """
+    import lightning.pytorch as pl
+    from lightning.pytorch.callbacks import EarlyStopping
+
+    from workbench.hydro.ef import EmpiricalFormula
+    from workbench.learn.callbacks import BestWeights, EpochLog
+    from workbench.learn.datamodule import WindowDataModule, prepare_data
+    from workbench.learn.legmodel import LearnedLegModel
+    from workbench.learn.metrics import score_runs
+    from workbench.learn.module import WrenchRegressor
+    from workbench.learn.nets import build_net
+    from workbench.learn.tracking import flat_metrics, flat_params, run_tags
+    from workbench.learn.windows import read_table
+
+    cfg = cfg.validate()
+    _quiet_lightning()
+    hybrid = cfg.model.variant == "ef_residual"
+    t_start = time.perf_counter()
+    if prepared is None:
+        prepared = prepare_data(read_table(cfg.data.paths), cfg.data, need_ef=hybrid)
+    elif hybrid and prepared.base is None:
+        prepared = prepare_data(prepared.table, cfg.data, need_ef=True, split=prepared.split)
+    if cfg.trainer.torch_threads:
+        import torch
+
+        torch.set_num_threads(int(cfg.trainer.torch_threads))
+    pl.seed_everything(cfg.trainer.seed, workers=False, verbose=False)
+    dm = WindowDataModule(prepared, cfg.data, with_base=hybrid, seed=cfg.trainer.seed)
+    net = build_net(cfg.model, cfg.data.seq_len)
+    module = WrenchRegressor(net, cfg.optim)
+    campaigns = prepared.table.campaigns()
+    tags = run_tags(kind=kind, campaigns=campaigns, variant=cfg.model.variant, dvc_stage=cfg.tracking.dvc_stage,
+                    **(extra_tags or {}))
+    metrics: dict = {}
+    objects: dict = {"prepared": prepared, "datamodule": dm, "module": module}
+    with _mlflow_run(cfg, tags, default_run_name(cfg), parent_run_id) as run:
+        if run is not None:
+            import mlflow
+
+            objects["run_id"] = run.info.run_id
+            mlflow.log_params({**flat_params(cfg.to_dict()), "n_train_windows": len(dm.ends["train"]),
+                               "n_val_windows": len(dm.ends["val"]), "n_test_windows": len(dm.ends["test"]),
+                               "windows_per_epoch": dm.windows_per_epoch(),
+                               **{f"n_{k}_sets": v for k, v in prepared.split.counts().items()}})
+            mlflow.log_dict(prepared.split.to_dict(prepared.table), "split.json")
+        log = EpochLog(cfg.trainer.max_epochs, report, mlflow_run=run is not None)
+        best = BestWeights()
+        cbs = [log, best, *callbacks]
+        if cfg.trainer.early_stop_patience:
+            cbs.append(EarlyStopping("val_loss", patience=cfg.trainer.early_stop_patience, mode="min"))
+        trainer = pl.Trainer(
+            accelerator="cpu", devices=1, max_epochs=cfg.trainer.max_epochs, logger=False,
+            enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
+            num_sanity_val_steps=0, gradient_clip_val=cfg.optim.grad_clip or None, callbacks=cbs,
+            max_time=timedelta(seconds=cfg.trainer.max_time_s) if cfg.trainer.max_time_s else None,
+        )
+        t_fit = time.perf_counter()
+        trainer.fit(module, datamodule=dm)
+        fit_s = time.perf_counter() - t_fit
+        best.restore(module)
+        info = {"campaigns": campaigns, "git_commit": tags["git_commit"], "best_epoch": best.best_epoch,
+                "trained_windows_per_epoch": dm.windows_per_epoch(), **({"run_id": run.info.run_id} if run else {})}
+        model = LearnedLegModel(net, model=cfg.model, seq_len=cfg.data.seq_len, dt_s=prepared.dt_s, norm=prepared.norm,
+                                info=info)
+        wps = [h["windows_per_s"] for h in log.history if h["windows_per_s"] == h["windows_per_s"]]
+        metrics.update({"best_val_loss": best.best, "best_epoch": best.best_epoch, "epochs": len(log.history),
+                        "fit_s": fit_s, "total_s": time.perf_counter() - t_start,
+                        "train_windows_per_s": sorted(wps)[len(wps) // 2] if wps else float("nan")})
+        test_runs = prepared.runs("test")
+        if len(test_runs):
+            scored = score_runs(prepared.table, test_runs, {"lstm": model, "ef": EmpiricalFormula()},
+                                skip=cfg.data.seq_len - 1)
+            metrics["test"] = scored
+            metrics["test_mse"] = scored["lstm"]["mse"]
+            metrics["test_r2"] = scored["lstm"]["r2"]
+            metrics["test_nmse"] = sum(1 - v for v in scored["lstm"]["r2"].values()) / 6
+        objects.update(model=model, history=log.history)
+        summary = _summary(metrics)
+        if cfg.model_dir:
+            write_model_dir(cfg, model, prepared, summary, log.history, cfg.model_dir)
+        if run is not None:
+            import mlflow
+
+            mlflow.log_metrics(flat_metrics(summary))
+            if log_model:
+                if cfg.model_dir:
+                    mlflow.log_artifacts(cfg.model_dir, artifact_path="model")
+                else:
+                    with tempfile.TemporaryDirectory() as tmp:
+                        _write_model_files(cfg, model, prepared, summary, log.history, Path(tmp))
+                        mlflow.log_artifacts(tmp, artifact_path="model")
+                if cfg.tracking.register:
+                    from workbench.learn.tracking import register_model
+
+                    objects["model_version"] = register_model(
+                        run, cfg.tracking.registered_model, cfg.tracking.alias,
+                        tags={k: tags[k] for k in ("campaign", "variant", "git_commit", "dvc_stage")})
+    metrics["summary"] = summary
+    return metrics, objects
+
+
+def _summary(metrics: dict) -> dict:
+    """The flat, JSON-friendly summary: what metrics.json holds and MLflow logs."""
+    out = {k: metrics[k] for k in ("best_val_loss", "best_epoch", "epochs", "fit_s", "train_windows_per_s")}
+    if "test" in metrics:
+        lstm, ef = metrics["test"]["lstm"], metrics["test"]["ef"]
+        out["test_nmse"] = metrics["test_nmse"]
+        for c in _LOG_CHANNELS:
+            out[f"test_mse_{c}"] = lstm["mse"][c]
+            out[f"test_r2_{c}"] = lstm["r2"][c]
+            out[f"test_ef_mse_{c}"] = ef["mse"][c]
+            out[f"test_mse_ratio_{c}"] = lstm["mse"][c] / ef["mse"][c] if ef["mse"][c] > 0 else float("nan")
+    return out
+
+
+def _history_csv(history: list[dict]) -> str:
+    buf = io.StringIO()
+    if history:
+        w = csv.DictWriter(buf, fieldnames=list(history[0]), lineterminator="\n")
+        w.writeheader()
+        w.writerows(history)
+    return buf.getvalue()
+
+
+def _write_model_files(cfg: LearnConfig, model, prepared, summary: dict, history: list[dict], folder: Path) -> None:
+    from workbench.learn.legmodel import save_model
+
+    save_model(model, folder)
+    (folder / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n", encoding="utf-8")
+    (folder / "split.json").write_text(json.dumps(prepared.split.to_dict(prepared.table), indent=2) + "\n",
+                                       encoding="utf-8")
+    (folder / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    (folder / "history.csv").write_text(_history_csv(history), encoding="utf-8")
+
+
+def write_model_dir(cfg: LearnConfig, model, prepared, summary: dict, history: list[dict], target: str | Path) -> Path:
+    """Write the model folder atomically (model.json, weights.pt, config, split, metrics, learning curve)."""
+    from workbench.atomic import atomic_dir
+
+    with atomic_dir(target) as tmp:
+        _write_model_files(cfg, model, prepared, summary, history, Path(tmp))
+        if history:
+            from workbench.learn.figures import learning_curve
+
+            learning_curve(history).savefig(Path(tmp) / "learning_curve.png", dpi=100)
+    return Path(target)

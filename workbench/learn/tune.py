@@ -1,0 +1,386 @@
+"""Hyper-parameter search: an Optuna study over sequence length, size, dropout, learning rate, batch and variant.
+
+The study lives in storage that survives a restart and that several processes share: by default
+an Optuna journal file ``.optuna/<study>.journal`` at the project root (fast and safe for
+processes on one machine), or any Optuna storage URL (``postgresql://...`` for a cluster).
+``run_study`` creates or resumes the study, opens a parent MLflow run, and runs the trials in
+``workers`` processes (``python -m workbench.learn.tune --worker SPEC``), each taking an exact
+share of ``n_trials`` so that no trial is lost or run twice; running the same command on another
+machine against the same storage adds its trials to the same study. Each trial is one
+``train(cfg)`` call with fewer epochs and windows, a child MLflow run (pruned trials end KILLED),
+pruned on the validation loss by Optuna's median rule after ``n_warmup_steps`` epochs. The best
+trial (lowest validation loss, never the test score) has its logged model registered under
+the ``tuned`` alias; its parameters go to ``best.json`` as ``--set`` overrides for ``workbench train``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from workbench.errors import ContractError, StageError
+from workbench.learn.config import LearnConfig, config_from_dict
+
+#: short search-parameter names -> configuration keys (any dotted key may be used directly too)
+PARAM_KEYS = {"seq_len": "data.seq_len", "hidden_size": "model.hidden_size", "num_layers": "model.num_layers",
+              "dropout": "model.dropout", "lr": "optim.lr", "batch_size": "data.batch_size",
+              "variant": "model.variant", "backbone": "model.backbone"}
+
+
+@dataclass(frozen=True)
+class TuneCfg:
+    """The ``tune`` section of ``pipelines/learn.yaml``."""
+
+    study: str = "fed-lstm"
+    storage: str | None = None
+    n_trials: int = 8
+    workers: int = 1
+    max_epochs: int = 4
+    train_windows_per_epoch: int | None = 20000
+    sampler_seed: int = 0
+    pruner: Mapping[str, int] = field(default_factory=lambda: {"n_startup_trials": 2, "n_warmup_steps": 1})
+    space: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    register_best: bool = True
+    alias: str = "tuned"
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "TuneCfg":
+        """From the YAML section (unknown keys refused)."""
+        known = set(cls.__dataclass_fields__)
+        bad = [k for k in d if k not in known]
+        if bad:
+            raise ContractError(f"unknown tune keys {bad}", hint=f"known: {', '.join(sorted(known))}")
+        return cls(**dict(d))
+
+
+def resolve_storage(storage: str | None, study: str):
+    """An Optuna storage: default journal file, a ``*.journal`` path, or an Optuna storage URL."""
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend, JournalFileOpenLock
+
+    from workbench.project import project_root
+
+    if storage is None or storage.endswith(".journal") or storage.startswith("journal:"):
+        path = Path(storage.removeprefix("journal:") if storage else project_root() / ".optuna" / f"{study}.journal")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # open()-based lock: works on local disks and NFS alike, no symlink permissions needed
+        return JournalStorage(JournalFileBackend(str(path), lock_obj=JournalFileOpenLock(str(path)))), str(path)
+    if "://" not in storage:
+        raise ContractError(f"storage {storage!r} is neither a .journal file nor a storage URL",
+                            hint="e.g. .optuna/study.journal or postgresql://user@host/db")
+    del optuna
+    return storage, storage
+
+
+def suggest(trial, space: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """Sample the search space: ``{name: {type: int|float|categorical, low, high, step, log, choices}}``."""
+    out = {}
+    for name, spec in space.items():
+        kind = spec.get("type", "float")
+        if kind == "categorical":
+            out[name] = trial.suggest_categorical(name, list(spec["choices"]))
+        elif kind == "int":
+            out[name] = trial.suggest_int(name, int(spec["low"]), int(spec["high"]), step=int(spec.get("step", 1)),
+                                          log=bool(spec.get("log", False)))
+        elif kind == "float":
+            out[name] = trial.suggest_float(name, float(spec["low"]), float(spec["high"]), log=bool(spec.get("log", False)),
+                                            step=spec.get("step"))
+        else:
+            raise ContractError(f"tune.space.{name}: unknown type {kind!r}", hint="int, float or categorical")
+    return out
+
+
+def trial_config(base: LearnConfig, tune: TuneCfg, params: Mapping[str, Any], study: str, number: int) -> LearnConfig:
+    """The training configuration of one trial: base + sampled parameters + the search's short budget."""
+    over: dict[str, Any] = {PARAM_KEYS.get(k, k): v for k, v in params.items()}
+    over.update({"trainer.max_epochs": tune.max_epochs, "data.train_windows_per_epoch": tune.train_windows_per_epoch,
+                 "model_dir": None, "tracking.register": False,
+                 "tracking.run_name": f"{study} trial {number:03d}"})
+    return base.with_overrides(over)
+
+
+_CACHE: dict[str, Any] = {}
+
+
+def _prepared(base: LearnConfig, need_ef: bool):
+    """Read and prepare the data once per process (trials only differ in how they window it)."""
+    from workbench.learn.datamodule import prepare_data
+    from workbench.learn.windows import read_table
+
+    key = json.dumps([base.data.paths, base.to_dict()["data"]["split"], need_ef])
+    if key not in _CACHE:
+        _CACHE.clear()
+        _CACHE[key] = prepare_data(read_table(base.data.paths), base.data, need_ef=need_ef)
+    return _CACHE[key]
+
+
+def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run_id: str | None):
+    """The Optuna objective: train one trial configuration, return its best validation loss."""
+    from optuna_integration import PyTorchLightningPruningCallback
+
+    from workbench.learn.train import train
+
+    variants = tune.space.get("variant", {}).get("choices", [base.model.variant])
+    need_ef = "ef_residual" in variants or base.model.variant == "ef_residual"
+
+    def objective(trial) -> float:
+        params = suggest(trial, tune.space)
+        cfg = trial_config(base, tune, params, study_name, trial.number)
+        metrics, objects = train(cfg, prepared=_prepared(base, need_ef),
+                                 callbacks=[PyTorchLightningPruningCallback(trial, monitor="val_loss")],
+                                 parent_run_id=parent_run_id, kind="trial",
+                                 extra_tags={"study": study_name, "trial": trial.number})
+        if "run_id" in objects:
+            trial.set_user_attr("mlflow_run_id", objects["run_id"])
+        trial.set_user_attr("epochs", metrics["epochs"])
+        if "test_nmse" in metrics:
+            trial.set_user_attr("test_nmse", metrics["test_nmse"])
+        return float(metrics["best_val_loss"])
+
+    return objective
+
+
+def _progress_callback(total: int, baseline: set[int], report: Callable[[str], None], tag: str):
+    import optuna
+
+    finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED, optuna.trial.TrialState.FAIL)
+
+    def callback(study, trial):
+        trials = study.get_trials(deepcopy=False, states=finished)
+        done = sum(1 for t in trials if t.number not in baseline)
+        complete = [t for t in trials if t.state == optuna.trial.TrialState.COMPLETE]
+        best = min(complete, key=lambda t: t.value) if complete else None
+        state = trial.state.name.lower()
+        value = f"val {trial.value:.4f}" if trial.value is not None else \
+            f"at epoch {max(trial.intermediate_values) + 1}" if trial.intermediate_values else ""
+        params = ", ".join(f"{k}={_fmt(v)}" for k, v in trial.params.items())
+        best_s = f"best {best.value:.4f} (trial {best.number})" if best else "no complete trial yet"
+        report(f"trial {done}/{total}{tag}: #{trial.number} {state} {value} [{params}]  {best_s}")
+
+    return callback
+
+
+def _fmt(v) -> str:
+    return f"{v:.3g}" if isinstance(v, float) else str(v)
+
+
+def make_pruner(spec: Mapping[str, Any]):
+    """``{type: median (default), n_startup_trials, n_warmup_steps}``, ``{type: threshold, upper}`` or ``{type: none}``."""
+    import optuna
+
+    spec = dict(spec)
+    kind = spec.pop("type", "median")
+    if kind == "median":
+        return optuna.pruners.MedianPruner(**spec)
+    if kind == "threshold":
+        return optuna.pruners.ThresholdPruner(**spec)
+    if kind == "none":
+        return optuna.pruners.NopPruner()
+    raise ContractError(f"tune.pruner.type {kind!r} unknown", hint="median, threshold or none")
+
+
+def run_worker(spec: Mapping[str, Any], report: Callable[[str], None] | None = None) -> None:
+    """One worker: load the shared study and run its share of trials (also used in-process for 1 worker)."""
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    base = config_from_dict(spec["config"])
+    tune = TuneCfg.from_dict(spec["tune"])
+    storage, _ = resolve_storage(spec["storage"], spec["study"])
+    sampler = optuna.samplers.TPESampler(seed=tune.sampler_seed + 1000 * int(spec["worker"]))
+    pruner = make_pruner(tune.pruner)
+    study = optuna.load_study(study_name=spec["study"], storage=storage, sampler=sampler, pruner=pruner)
+    if spec.get("tracking_uri"):
+        os.environ["MLFLOW_TRACKING_URI"] = spec["tracking_uri"]
+    objective = make_objective(base, tune, spec["study"], spec.get("parent_run_id"))
+    tag = f" [worker {spec['worker']}]" if spec.get("n_workers", 1) > 1 else ""
+    cbs = [_progress_callback(spec["total"], set(spec["baseline"]), report, tag)] if report else []
+    study.optimize(objective, n_trials=int(spec["n_trials"]), catch=(Exception,), callbacks=cbs,
+                   gc_after_trial=False)
+
+
+def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = None, fresh: bool = False,
+              report: Callable[[str], None] | None = None) -> dict:
+    """Create/resume the study, run its trials in ``tune.workers`` processes, register the best; returns a summary."""
+    import mlflow
+    import optuna
+
+    from workbench.learn.tracking import run_tags, setup
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storage, where = resolve_storage(tune.storage, tune.study)
+    if fresh and tune.study in optuna.get_all_study_names(storage):
+        optuna.delete_study(study_name=tune.study, storage=storage)
+    study = optuna.create_study(study_name=tune.study, storage=storage, direction="minimize", load_if_exists=True)
+    baseline = [t.number for t in study.get_trials(deepcopy=False)]
+    if report:
+        report(f"study {tune.study!r} in {where}: {len(baseline)} earlier trial(s); running {tune.n_trials} "
+               f"in {tune.workers} worker process(es)")
+    parent_id = None
+    tracking_uri = None
+    if base.tracking.enabled:
+        tracking_uri = setup(base.tracking.tracking_uri, base.tracking.experiment)
+        campaigns = _campaigns(base)
+        parent = mlflow.start_run(run_name=f"tune {tune.study}", tags=run_tags(
+            kind="tune", campaigns=campaigns, dvc_stage=base.tracking.dvc_stage, study=tune.study, storage=where))
+        parent_id = parent.info.run_id
+        from workbench.learn.tracking import flat_params
+
+        mlflow.log_params(flat_params({"tune": {k: v for k, v in tune.__dict__.items() if k != "space"},
+                                       "space": dict(tune.space)}))
+    status = "FAILED"
+    try:
+        spec = {"config": base.to_dict(), "tune": _tune_dict(tune), "storage": where, "study": tune.study,
+                "parent_run_id": parent_id, "tracking_uri": tracking_uri, "total": tune.n_trials,
+                "baseline": baseline, "n_workers": tune.workers}
+        t0 = time.perf_counter()
+        if tune.workers <= 1:
+            run_worker({**spec, "worker": 0, "n_trials": tune.n_trials}, report)
+        else:
+            _spawn_workers(spec, tune, report)
+        elapsed = time.perf_counter() - t0
+        summary = summarise(optuna.load_study(study_name=tune.study, storage=storage), set(baseline), elapsed)
+        summary["storage"] = where
+        if summary["best"] is None:
+            raise StageError(f"study {tune.study!r}: no trial completed; first failure: {summary['first_failure']}")
+        if base.tracking.enabled and tune.register_best and summary["best"].get("mlflow_run_id"):
+            summary["best"]["model_version"] = _register_best(base, tune, summary["best"])
+        if base.tracking.enabled:
+            mlflow.log_metrics({"best_val_loss": summary["best"]["value"], "n_complete": summary["counts"]["COMPLETE"],
+                                "n_pruned": summary["counts"]["PRUNED"], "n_failed": summary["counts"]["FAIL"],
+                                "elapsed_s": elapsed})
+            mlflow.log_dict(summary, "tune_summary.json")
+        if out_dir:
+            write_outputs(summary, out_dir)
+        status = "FINISHED"
+        return summary
+    finally:
+        if parent_id is not None:
+            mlflow.end_run(status=status)
+
+
+def _campaigns(base: LearnConfig) -> list[str]:
+    import polars as pl
+
+    ids: list[str] = []
+    for p in base.data.paths:
+        try:
+            ids += pl.scan_parquet(p).select(pl.col("campaign_id").unique()).collect()["campaign_id"].to_list()
+        except Exception:  # noqa: BLE001 - the workers report a bad file properly
+            pass
+    return sorted(set(ids))
+
+
+def _tune_dict(tune: TuneCfg) -> dict:
+    return {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in tune.__dict__.items()}
+
+
+def _spawn_workers(spec: dict, tune: TuneCfg, report: Callable[[str], None] | None) -> None:
+    """Start the worker processes with an exact share of the trials each, relay their lines, wait for all."""
+    procs, files = [], []
+    share = [tune.n_trials // tune.workers + (1 if i < tune.n_trials % tune.workers else 0) for i in range(tune.workers)]
+    try:
+        for i, n in enumerate(share):
+            if n == 0:
+                continue
+            fh = tempfile.NamedTemporaryFile("w", suffix=".json", delete=False)
+            json.dump({**spec, "worker": i, "n_trials": n}, fh)
+            fh.close()
+            files.append(fh.name)
+            procs.append(subprocess.Popen([sys.executable, "-m", "workbench.learn.tune", "--worker", fh.name],
+                                          stdout=subprocess.DEVNULL, stderr=None if report else subprocess.DEVNULL))
+        codes = [p.wait() for p in procs]
+    except KeyboardInterrupt:
+        for p in procs:
+            p.terminate()
+        raise
+    finally:
+        for f in files:
+            Path(f).unlink(missing_ok=True)
+    if any(codes):
+        raise StageError(f"tune worker(s) failed with exit status {codes}", hint="see the worker lines above")
+
+
+def summarise(study, baseline: set[int], elapsed_s: float = 0.0) -> dict:
+    """Counts, the best trial and one row per trial of this invocation (and the study's overall best)."""
+    import optuna
+
+    trials = study.get_trials(deepcopy=False)
+    mine = [t for t in trials if t.number not in baseline]
+    counts = {s.name: sum(1 for t in mine if t.state == s) for s in optuna.trial.TrialState}
+    complete = [t for t in trials if t.state == optuna.trial.TrialState.COMPLETE]
+    best = min(complete, key=lambda t: t.value) if complete else None
+    fails = [t.system_attrs.get("fail_reason", "?") for t in mine if t.state == optuna.trial.TrialState.FAIL]
+    rows = [{"number": t.number, "state": t.state.name, "value": t.value, "params": t.params,
+             "epochs": len(t.intermediate_values), "duration_s": t.duration.total_seconds() if t.duration else None,
+             "mlflow_run_id": t.user_attrs.get("mlflow_run_id")} for t in trials]
+    best_d = None
+    if best is not None:
+        over = [f"{PARAM_KEYS.get(k, k)}={v}" for k, v in best.params.items()]
+        best_d = {"number": best.number, "value": best.value, "params": best.params, "overrides": over,
+                  "mlflow_run_id": best.user_attrs.get("mlflow_run_id"), "test_nmse": best.user_attrs.get("test_nmse")}
+    return {"study": study.study_name, "n_trials_total": len(trials), "n_trials_this_run": len(mine),
+            "counts": counts, "best": best_d, "first_failure": fails[0] if fails else None,
+            "elapsed_s": elapsed_s, "trials": rows}
+
+
+def _register_best(base: LearnConfig, tune: TuneCfg, best: dict) -> str:
+    from mlflow import MlflowClient
+
+    from workbench.learn.tracking import register_model
+
+    run = MlflowClient().get_run(best["mlflow_run_id"])
+    return register_model(run, base.tracking.registered_model, tune.alias,
+                          tags={"study": tune.study, "trial": str(best["number"]), **{
+                              k: run.data.tags.get(k, "") for k in ("campaign", "variant", "git_commit", "dvc_stage")}})
+
+
+def write_outputs(summary: dict, out_dir: str | Path) -> Path:
+    """``best.json`` (best trial, its ``--set`` overrides) and ``trials.csv`` in ``out_dir`` (atomically)."""
+    import csv
+    import io
+
+    from workbench.atomic import atomic_dir
+
+    with atomic_dir(out_dir) as tmp:
+        tmp = Path(tmp)
+        best = {k: summary[k] for k in ("study", "storage", "n_trials_total", "n_trials_this_run", "counts", "best")}
+        (tmp / "best.json").write_text(json.dumps(best, indent=2) + "\n", encoding="utf-8")
+        buf = io.StringIO()
+        names = sorted({k for r in summary["trials"] for k in r["params"]})
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["number", "state", "value", "epochs", "duration_s", *names, "mlflow_run_id"])
+        for r in summary["trials"]:
+            w.writerow([r["number"], r["state"], "" if r["value"] is None else r["value"], r["epochs"],
+                        "" if r["duration_s"] is None else f"{r['duration_s']:.2f}",
+                        *[r["params"].get(n, "") for n in names], r["mlflow_run_id"] or ""])
+        (tmp / "trials.csv").write_text(buf.getvalue(), encoding="utf-8")
+    return Path(out_dir)
+
+
+def _worker_main(argv: list[str]) -> int:
+    from workbench.console import info
+    from workbench.errors import WorkbenchError
+
+    if len(argv) != 2 or argv[0] != "--worker":
+        print("usage: python -m workbench.learn.tune --worker SPEC.json", file=sys.stderr)
+        return 2
+    spec = json.loads(Path(argv[1]).read_text(encoding="utf-8"))
+    try:
+        run_worker(spec, info)
+    except WorkbenchError as exc:
+        print(f"error: {exc.format()}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_worker_main(sys.argv[1:]))

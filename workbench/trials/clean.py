@@ -1,0 +1,178 @@
+"""From raw marker pixels to a clean pose series on the water plane (pure numpy/scipy).
+
+Position is the midpoint of the two markers and heading the tail-to-head direction (contract
+section 2), both in tank metres. Outliers are rejected with a Hampel filter (a rolling median
+and median absolute deviation), gaps up to ``max_gap_s`` are filled with a shape-preserving
+cubic (PCHIP, so a brief occlusion does not overshoot), longer gaps stay NaN, and each
+continuous stretch is smoothed with a Savitzky-Golay filter, which keeps the timing of a
+crossing unbiased (a local polynomial, not a lagging average).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from workbench.trials.geometry import apply_homography
+from workbench.trials.params import ScoringParams
+
+
+@dataclass(frozen=True)
+class PoseSeries:
+    """Per-frame pose in the tank frame; NaN inside gaps longer than ``max_gap_s``."""
+
+    t_s: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    #: unwrapped, counter-clockwise from tank +X (radians)
+    heading_rad: np.ndarray
+    #: both markers seen and kept in this frame
+    detected: np.ndarray
+    #: value comes from gap filling
+    filled: np.ndarray
+    #: raw (unsmoothed) marker positions in tank metres, NaN when missing or rejected
+    head_m: np.ndarray
+    tail_m: np.ndarray
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        """Interpolated ``(x, y, heading)`` at time ``t``; NaN when ``t`` lies in a gap."""
+        out = []
+        for a in (self.x_m, self.y_m, self.heading_rad):
+            i = int(np.searchsorted(self.t_s, t))
+            lo, hi = max(i - 1, 0), min(i, len(a) - 1)
+            if not (np.isfinite(a[lo]) and np.isfinite(a[hi])):
+                out.append(np.nan)
+            elif hi == lo:
+                out.append(float(a[lo]))
+            else:
+                w = (t - self.t_s[lo]) / (self.t_s[hi] - self.t_s[lo])
+                out.append(float(a[lo] + w * (a[hi] - a[lo])))
+        return out[0], out[1], out[2]
+
+
+def start_heading(pose: PoseSeries, start_s: float, before_s: float, after_s: float) -> float:
+    """Heading at ``start_s`` from a quadratic fit to the kept raw headings around it (NaN if too few).
+
+    The robot rests or moves slowly there, so video-compression errors of the marker centroids
+    change little from frame to frame and a short smoothing window cannot average them out; a
+    fit over a few seconds can.
+    """
+    d = pose.head_m - pose.tail_m
+    ok = pose.detected & (pose.t_s >= start_s - before_s) & (pose.t_s <= start_s + after_s)
+    if ok.sum() < 5:
+        return float("nan")
+    ang = np.arctan2(d[ok, 1], d[ok, 0])
+    # unwrap near the smoothed heading so the fit sees a continuous angle
+    ref = np.interp(pose.t_s[ok], pose.t_s, pose.heading_rad)
+    ang = ref + (ang - ref + np.pi) % (2 * np.pi) - np.pi
+    tt = pose.t_s[ok] - start_s
+    order = 2 if np.ptp(tt) > 0.5 else 0
+    return float(np.polyval(np.polyfit(tt, ang, order), 0.0))
+
+
+def _odd(n: float) -> int:
+    n = int(round(n))
+    return n if n % 2 == 1 else n + 1
+
+
+def hampel_mask(v: np.ndarray, window: int, sigmas: float, floor: float) -> np.ndarray:
+    """True where a finite sample deviates from its rolling median by more than the threshold.
+
+    The threshold is ``max(sigmas * 1.4826 * MAD, floor)``; the window runs over finite samples.
+    """
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    out = np.zeros(v.shape, bool)
+    idx = np.flatnonzero(np.isfinite(v))
+    if idx.size < 5:
+        return out
+    w = min(_odd(window), _odd(idx.size) - 2 if idx.size > 2 else 1)
+    w = max(w, 3)
+    x = v[idx]
+    pad = w // 2
+    xp = np.pad(x, pad, mode="reflect")
+    win = sliding_window_view(xp, w)
+    med = np.median(win, axis=1)
+    mad = np.median(np.abs(win - med[:, None]), axis=1)
+    thr = np.maximum(sigmas * 1.4826 * mad, floor)
+    out[idx] = np.abs(x - med) > thr
+    return out
+
+
+def fill_gaps(t: np.ndarray, v: np.ndarray, max_gap_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Fill NaN runs between finite samples no further apart than ``max_gap_s`` (PCHIP).
+
+    Returns the filled series and a mask of the filled samples. Leading and trailing NaNs stay.
+    """
+    from scipy.interpolate import PchipInterpolator
+
+    v = v.copy()
+    filled = np.zeros(v.shape, bool)
+    ok = np.flatnonzero(np.isfinite(v))
+    if ok.size < 2:
+        return v, filled
+    gaps = np.flatnonzero(np.diff(ok) > 1)
+    if gaps.size == 0:
+        return v, filled
+    f = PchipInterpolator(t[ok], v[ok])
+    for g in gaps:
+        a, b = ok[g], ok[g + 1]
+        if t[b] - t[a] <= max_gap_s:
+            v[a + 1:b] = f(t[a + 1:b])
+            filled[a + 1:b] = True
+    return v, filled
+
+
+def smooth_segments(v: np.ndarray, window: int, order: int) -> np.ndarray:
+    """Savitzky-Golay smoothing of each finite stretch (short stretches get shorter windows)."""
+    from scipy.signal import savgol_filter
+
+    out = v.copy()
+    finite = np.isfinite(v)
+    if not finite.any():
+        return out
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], finite.astype(np.int8), [0]])))
+    for a, b in zip(edges[::2], edges[1::2]):
+        n = b - a
+        w = min(_odd(window), n if n % 2 == 1 else n - 1)
+        if w > order + 1:
+            out[a:b] = savgol_filter(v[a:b], w, order, mode="interp")
+    return out
+
+
+def clean_pose(t_s: np.ndarray, head_px: np.ndarray, tail_px: np.ndarray, h_px2m: np.ndarray,
+               params: ScoringParams | None = None) -> PoseSeries:
+    """Pose series from per-frame head and tail pixel positions (``(N, 2)``, NaN when missing)."""
+    p = params or ScoringParams()
+    t = np.asarray(t_s, float)
+    head = apply_homography(h_px2m, np.asarray(head_px, float))
+    tail = apply_homography(h_px2m, np.asarray(tail_px, float))
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    both = np.all(np.isfinite(head), axis=1) & np.all(np.isfinite(tail), axis=1)
+    mid = np.where(both[:, None], 0.5 * (head + tail), np.nan)
+    d = head - tail
+    heading = np.full(t.shape, np.nan)
+    heading[both] = np.unwrap(np.arctan2(d[both, 1], d[both, 0]))
+    # outliers: any coordinate of the pose off its rolling median
+    win = p.hampel_window_s / dt
+    bad = (hampel_mask(mid[:, 0], win, p.hampel_sigmas, p.hampel_floor_m)
+           | hampel_mask(mid[:, 1], win, p.hampel_sigmas, p.hampel_floor_m)
+           | hampel_mask(heading, win, p.hampel_sigmas, np.radians(p.hampel_floor_deg)))
+    keep = both & ~bad
+    x = np.where(keep, mid[:, 0], np.nan)
+    y = np.where(keep, mid[:, 1], np.nan)
+    hd = np.where(keep, heading, np.nan)
+    if keep.any():
+        # re-unwrap after dropping outliers so a rejected flip leaves no 2 pi step behind
+        hd[keep] = np.unwrap(hd[keep])
+    filled = np.zeros(t.shape, bool)
+    series = []
+    for v, win_s in ((x, p.smooth_window_s), (y, p.smooth_window_s), (hd, p.heading_window_s)):
+        v2, f = fill_gaps(t, v, p.max_gap_s)
+        filled |= f
+        series.append(smooth_segments(v2, win_s / dt, p.smooth_order))
+    raw_head = np.where(keep[:, None], head, np.nan)
+    raw_tail = np.where(keep[:, None], tail, np.nan)
+    return PoseSeries(t_s=t, x_m=series[0], y_m=series[1], heading_rad=series[2], detected=keep,
+                      filled=filled, head_m=raw_head, tail_m=raw_tail)
