@@ -31,8 +31,12 @@ class LaggedEF(LegForceModel):
         return y
 
 
-def small_lstm(seed: int = 0, hidden: int = 16, residual_scale_n: float = 0.03):
-    """An EF-residual FED-LSTM (real LearnedLegModel code path) with random weights: EF + a memory term."""
+def small_lstm(seed: int = 0, hidden: int = 16, residual_scale_n: float = 0.03, variant: str = "ef_residual"):
+    """A FED-LSTM with random weights on the real LearnedLegModel code path.
+
+    ``ef_residual``: the EF plus an LSTM memory term of about ``residual_scale_n``; ``lstm``: the
+    bare net (outputs of that size, no physics).
+    """
     import torch
 
     from workbench.learn.config import ModelCfg
@@ -41,7 +45,7 @@ def small_lstm(seed: int = 0, hidden: int = 16, residual_scale_n: float = 0.03):
     from workbench.learn.windows import Normalisation
 
     torch.manual_seed(seed)
-    cfg = ModelCfg(variant="ef_residual", hidden_size=hidden, num_layers=2, dropout=0.0, backbone="lstm")
+    cfg = ModelCfg(variant=variant, hidden_size=hidden, num_layers=2, dropout=0.0, backbone="lstm")
     net = build_net(cfg, 16)
     s = residual_scale_n
     norm = Normalisation((0.1, -45.0, 0.0, 0.0, 0.0), (0.1, 30.0, 50.0, 100.0, 200.0), (0.0,) * 6,

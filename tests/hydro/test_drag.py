@@ -8,7 +8,7 @@ import pytest
 from towing_fixture import PAPER, carriage_profile, towing_frame
 
 from workbench.errors import ContractError, DataError
-from workbench.hydro.drag import DragFitParams, PlateauParams, fit_drag, steady_window
+from workbench.hydro.drag import DragFitParams, PlateauParams, fit_drag, mean_sem, steady_window
 from workbench.project import load_params, project_root
 
 
@@ -100,8 +100,9 @@ def test_ordinary_least_squares_and_tare():
     ols = fit_drag(frame, params=DragFitParams(weighting="none"))
     for h in ols.headings():
         assert np.all(np.abs(np.array(h.coefficients) - PAPER[h.heading]) < 3 * np.array(h.stderr))
-    # a load-cell zero offset of +0.05 N on fy: taring removes it, otherwise it shifts the intercept
-    shifted = frame.with_columns((pl.col("fy_n") + 0.05).alias("fy_n"))
+    # a load-cell zero offset of +0.05 N drifting 2 mN/s on fy: taring removes it (read at rest before and
+    # after each tow, interpolated in time), otherwise it shifts the intercept
+    shifted = frame.with_columns((pl.col("fy_n") + 0.05 + 0.002 * (pl.col("time_s") - 10.0)).alias("fy_n"))
     raw = fit_drag(shifted, params=DragFitParams(tare=False))
     tared = fit_drag(shifted)  # taring is the default
     assert abs(raw.forward.coefficients[2] - (0.334 - 0.05)) < 3 * raw.forward.stderr[2]
@@ -133,3 +134,17 @@ def test_missing_columns_refused():
     frame = towing_frame(speeds=(0.1, 0.2, 0.3)).drop("fy_n")
     with pytest.raises(ContractError, match="fy_n"):
         fit_drag(frame)
+
+
+def test_standard_error_of_an_autocorrelated_mean_is_calibrated():
+    # first-order (AR(1)) noise, correlation time 0.16 s at 100 Hz: the naive sigma/sqrt(N) is 6x too small
+    from scipy import signal
+
+    rng = np.random.default_rng(0)
+    a = np.exp(-2 * np.pi * 0.01)
+    series = [signal.lfilter([1 - a], [1, -a], rng.standard_normal(3800))[3000:] for _ in range(200)]
+    spread = np.std([x.mean() for x in series])
+    sem = np.sqrt(np.mean([mean_sem(x) ** 2 for x in series]))
+    naive = np.mean([x.std(ddof=1) / np.sqrt(x.size) for x in series])
+    assert 0.85 < sem / spread < 1.2
+    assert naive < 0.3 * spread

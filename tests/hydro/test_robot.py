@@ -59,7 +59,7 @@ def test_right_legs_are_the_mirror_images_of_the_left():
 
 
 def test_drag_law_below_range_goes_linearly_to_zero():
-    law = DragLaw(PAPER_FORWARD_DRAG, (0.10, 0.35))
+    law = DragLaw(PAPER_FORWARD_DRAG, (0.10, 0.35), "linear_to_zero")
     at_v0 = 9.997 * 0.01 - 0.0132 + 0.334
     np.testing.assert_allclose(law.magnitude([0.0, 0.05, 0.10, 0.2]),
                                [0.0, at_v0 / 2, at_v0, 9.997 * 0.04 - 0.132 * 0.2 + 0.334])
@@ -68,6 +68,14 @@ def test_drag_law_below_range_goes_linearly_to_zero():
     np.testing.assert_allclose(fitted.magnitude(1e-9), 0.334, rtol=1e-6)  # the paper's drag at rest
     with pytest.raises(ValueError):
         DragLaw(PAPER_FORWARD_DRAG, below_range="nonsense")
+
+
+def test_drag_law_drop_intercept_is_the_polynomial_without_c0():
+    law = DragLaw(PAPER_FORWARD_DRAG, (0.10, 0.35))
+    assert law.below_range == "drop_intercept"
+    v = np.array([0.0, 0.005, 0.05, 0.2])
+    np.testing.assert_allclose(law.magnitude(v), np.maximum(9.997 * v**2 - 0.132 * v, 0.0))
+    np.testing.assert_allclose(law.force([-0.2, 0.2]), [law.magnitude(0.2), -law.magnitude(0.2)])
 
 
 def test_repository_robot_yaml_matches_the_documented_defaults():

@@ -294,3 +294,16 @@ def test_skip_bad_runs_with_no_good_run_still_refuses(campaign, capsys, tmp_path
     out = tmp_path / "out.parquet"
     assert main(["ingest", str(root), "--out", str(out), "--skip-bad-runs"]) == 2
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_bad_runs_found_on_worker_threads_keep_their_run_and_line(campaign):
+    from workbench.errors import CampaignRefused
+    from workbench.ingest import ingest_campaign
+
+    root = campaign([RunPlan(f"r{i}", seed=i) for i in range(1, 5)])
+    _break_runs(root, ["r3"])
+    with pytest.raises(CampaignRefused) as info:
+        ingest_campaign(root, params={"workers": 2})
+    (err,) = info.value.errors
+    assert err.run == "r3" and err.where == "line 1001" and "gap" in err.fault

@@ -110,13 +110,15 @@ def test_trigger_line_and_rest_stretches(tunnel_csv):
         start = r["controller"]["start_tick"]
         assert edges[0] == start == 65 and sync[:start].sum() == 0  # a 1 s rest, line low
         assert list(np.diff(edges)) == [65] * (len(edges) - 1)  # every 1.000 s of the controller clock
-        assert len(edges) == r["controller"]["edges"] == math.floor(2 / r["params"]["frequency_hz"]) + 1
+        motion_s = 2 / r["params"]["frequency_hz"] + r["controller"]["ease_s"]
+        assert r["controller"]["ease_s"] == pytest.approx(0.4)
+        assert len(edges) == r["controller"]["edges"] == math.floor(motion_s) + 1
         assert sync.sum() == 7 * len(edges)  # high 0.1 s: 7 ticks at 65 Hz
         assert t[start] == pytest.approx(r["controller"]["first_edge_s"], abs=1e-6)
         np.testing.assert_allclose(np.diff(t), 1 / 65, atol=2e-6)
         hfe = m["hfe_cmd_deg"].to_numpy()
         assert np.ptp(hfe[: start + 1]) == 0  # at rest at the start pose until the run starts
-        end = start + math.ceil(r["cycles"] / r["params"]["frequency_hz"] * 65)
+        end = start + math.ceil(motion_s * 65)
         assert np.ptp(hfe[end:]) < 1e-3 and abs(hfe[end] - hfe[start]) < 1e-3  # whole cycles: back at rest
 
 
@@ -224,8 +226,8 @@ def test_ef_truth_reading_is_ef_plus_bias_drift_and_noise(tmp_path):
     d = r["daq"]
     t_ctrl = (t_daq - d["offset_s"]) / (1 + d["drift_ppm"] * 1e-6)
     js = JointSinusoid.from_params(r["params"])
-    duration = r["cycles"] / r["params"]["frequency_hz"]
-    th, om, al = prescribed(js, t_ctrl, r["controller"]["first_edge_s"], duration)
+    cycles_s = r["cycles"] / r["params"]["frequency_hz"]
+    th, om, al = prescribed(js, t_ctrl, r["controller"]["first_edge_s"], cycles_s, r["controller"]["ease_s"])
     motion = LegMotion.from_arrays(0.002, th[:, 0], th[:, 1], om[:, 0], om[:, 1], 0.2, al[:, 0], al[:, 1])
     ef = EmpiricalFormula().wrench(motion)[0]
     bias, drift = np.array(r["loadcell"]["bias"]), np.array(r["loadcell"]["drift_per_s"])
@@ -286,3 +288,20 @@ def test_regenerates_its_own_folder_and_keeps_it_on_failure(tmp_path, monkeypatc
     assert (out / "campaign.toml").read_bytes() == before  # (same grid: same manifest)
     assert [p.name for p in tmp_path.iterdir()] == ["camp"]  # no temporary folder left behind
     tomllib.loads((out / "campaign.toml").read_text())
+
+
+def test_eased_motion_has_no_velocity_step_and_full_cycles():
+    js = JointSinusoid.from_params({**SMALL_GRID[0], "theta_h_max_deg": -100.0, "theta_k_min_deg": 80.0})
+    t = np.arange(-1, 6, 0.001)
+    cycles_s = 2 / 0.6
+    th, om, al = prescribed(js, t, 0.0, cycles_s, 0.4)
+    assert np.abs(np.diff(om, axis=0)).max() < 2.0  # deg/s per ms: no step
+    np.testing.assert_allclose(om, np.gradient(th, 0.001, axis=0), atol=0.2)
+    np.testing.assert_allclose(al[1:-1], np.gradient(om, 0.001, axis=0)[1:-1], atol=5.0)
+    np.testing.assert_allclose(th[t >= cycles_s + 0.4], th[0:1].repeat((t >= cycles_s + 0.4).sum(), 0), atol=1e-9)
+    # between the ramps: the paper's eq. 3, half a ramp late
+    mid = (t > 1.0) & (t < 2.5)
+    th_eq, tk_eq, *_ = js.evaluate(t[mid] - 0.2)
+    np.testing.assert_allclose(th[mid, 0], th_eq, atol=1e-9)
+    bare, _, _ = prescribed(js, t, 0.0, cycles_s, 0.0)
+    np.testing.assert_allclose(bare[(t > 0) & (t < cycles_s), 1], js.evaluate(t[(t > 0) & (t < cycles_s)])[1])

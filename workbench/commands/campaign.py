@@ -36,13 +36,15 @@ def register(sub) -> None:
 
 def _validate(folder: Path):
     from workbench.commands.ingest import PARAMS_FILE, load_section
-    from workbench.console import info
+    from workbench.console import info, progress
+    from workbench.contract.campaign import check_manifest
     from workbench.ingest.params import IngestParams
     from workbench.ingest.validate import validate_campaign
 
     values = load_section(None, "ingest", PARAMS_FILE)
-    values.pop("workers", None)
-    result = validate_campaign(folder, IngestParams.from_mapping(values))
+    camp, _ = check_manifest(folder)
+    with progress(f"validate {folder.name}", total=len(camp.runs) if camp else 0, unit=" runs") as bar:
+        result = validate_campaign(folder, IngestParams.from_mapping(values), progress=bar.advance)
     for e in result.errors:
         print(f"error: {e.format()}", file=sys.stderr)
     for w in result.warnings:
@@ -132,5 +134,5 @@ def run_list(args) -> int:
             table.add_row(cid, camp.facility if camp else key, str(len(camp.runs)) if camp else "?", status,
                           {"stage": "stage output", "added": "dvc add", "untracked": "[yellow]untracked[/yellow]"}
                           [track.kind], "yes" if processed.is_file() else "no")
-    Console(file=sys.stdout).print(table)
+    Console(file=sys.stdout, width=None if sys.stdout.isatty() else 120).print(table)
     return 0

@@ -35,7 +35,7 @@ def register(sub) -> None:
     p.add_argument("--skip-bad-runs", action="store_true",
                    help="ingest the good runs and record the bad ones instead of refusing the campaign")
     p.add_argument("--force", action="store_true", help="reprocess even when the output is up to date")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: automatic, at most 2)")
+    p.add_argument("--workers", type=int, default=None, help="worker threads over runs (default: automatic, at most 2)")
     p.add_argument("--quiet", action="store_true", help="no quality table on the terminal")
     p.set_defaults(func=run)
 
@@ -55,7 +55,7 @@ def load_section(path: Path | None, section: str, default_file: str) -> dict:
 def run(args) -> int:
     """Ingest (or say the output is up to date) and show the quality report."""
     from workbench.atomic import write_json
-    from workbench.console import info
+    from workbench.console import info, progress
     from workbench.contract.campaign import load_campaign
     from workbench.ingest import ingest_to_file, quality_path, read_provenance
     from workbench.ingest.quality import render_quality, summary_line
@@ -66,7 +66,12 @@ def run(args) -> int:
         values["workers"] = args.workers
     camp = load_campaign(args.campaign)
     out = args.out or datasets_dir() / "processed" / f"{camp.id}.parquet"
-    result = ingest_to_file(args.campaign, out, params=values, skip_bad_runs=args.skip_bad_runs, force=args.force)
+    if args.quiet:
+        result = ingest_to_file(args.campaign, out, params=values, skip_bad_runs=args.skip_bad_runs, force=args.force)
+    else:
+        with progress(f"ingest {camp.id}", total=len(camp.runs), unit=" runs") as bar:
+            result = ingest_to_file(args.campaign, out, params=values, skip_bad_runs=args.skip_bad_runs,
+                                    force=args.force, progress=bar.advance)
     if result is None:
         meta = read_provenance(out)
         qpath = quality_path(out)

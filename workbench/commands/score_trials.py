@@ -24,6 +24,7 @@ def register(sub) -> None:
   workbench score-trials datasets/raw/pool-2025-04 --out /tmp/scores --trial lstm-straight-1 --no-plots
   workbench score-trials datasets/raw/pool-2025-04 --out /tmp/scores --baseline EF --workers 1
   workbench score-trials datasets/raw/pool-2025-04 --out /tmp/scores --strict   # CI: any bad trial fails
+  workbench score-trials datasets/raw/pool-2025-04 --out /tmp/scores --check    # list manifest problems
 """)
     p.add_argument("trials_dir", type=Path, help="trials folder with trials.toml and videos/")
     p.add_argument("--out", type=Path, required=True, help="output folder (replaced atomically)")
@@ -37,6 +38,8 @@ def register(sub) -> None:
     p.add_argument("--no-overlay", dest="overlay", action="store_false")
     p.add_argument("--no-plots", dest="plots", action="store_false", default=None)
     p.add_argument("--strict", action="store_true", help="exit with status 2 if any trial failed")
+    p.add_argument("--check", action="store_true",
+                   help="only validate trials.toml: list every violation, score nothing (--out still required)")
     p.set_defaults(func=run)
 
 
@@ -60,6 +63,8 @@ def run(args) -> int:
     from workbench.errors import DataError
     from workbench.trials.outputs import run_scoring
 
+    if args.check:
+        return _check(args.trials_dir)
     params = load_scoring_params(args.params).replace(workers=args.workers, overlay=args.overlay,
                                                       plots=args.plots, baseline=args.baseline)
     result, summary = run_scoring(args.trials_dir, args.out, params, trial_ids=args.trial)
@@ -80,3 +85,16 @@ def run(args) -> int:
         raise DataError(f"{summary['n_failed']} trial(s) failed: {ids}; first: {summary['failed'][0]['error']}",
                         path=args.trials_dir / "trials.toml")
     return 0
+
+
+def _check(trials_dir: Path) -> int:
+    """Print every violation of trials.toml; status 0 when there is none."""
+    from workbench.contract.trials import check_trials
+
+    folder, errors, per_trial = check_trials(trials_dir)
+    problems = [e.format() for e in errors] + [e.format() for errs in per_trial.values() for e in errs]
+    for line in problems:
+        print(line)
+    if not problems:
+        print(f"{trials_dir}: trials.toml is valid ({len(folder.trials)} trials)")
+    return 2 if problems else 0

@@ -197,8 +197,12 @@ class FrameDecoder:
     capture, give or take a frame at a chunk boundary.
     """
 
+    #: counter steps seen before the frame period is taken as their median
+    LEARN_STEPS = 16
+
     def __init__(self, period_us: float | None = None):
         self.period_us = period_us
+        self._early_steps: list[int] = []
         self.frames = 0
         self.dropped_bytes = 0
         self.dropped_frames = 0
@@ -223,13 +227,18 @@ class FrameDecoder:
         else:
             time_us = unwrap_counter(raw, start=self._last_time, previous_u32=self._last_u32)
         if len(raw):
-            if self.period_us is None and len(raw) > 2:
-                steps = np.diff(time_us)
-                steps = steps[steps > 0]
-                if len(steps):
-                    self.period_us = float(np.median(steps))
             series = time_us if self._last_time is None else np.concatenate([[self._last_time], time_us])
-            self.dropped_frames += count_dropped(series, self.period_us) if self.period_us else 0
+            steps = np.diff(series)
+            if self.period_us is None:
+                # learn the frame period from the first steps, then count the gaps among them too
+                self._early_steps.extend(steps[steps > 0].tolist())
+                if len(self._early_steps) >= self.LEARN_STEPS:
+                    self.period_us = float(np.median(self._early_steps))
+                    early = np.asarray(self._early_steps)
+                    self.dropped_frames += count_dropped(np.concatenate([[0], np.cumsum(early)]), self.period_us)
+                    self._early_steps = []
+            else:
+                self.dropped_frames += count_dropped(series, self.period_us)
             self._last_u32 = int(raw[-1])
             self._last_time = int(time_us[-1])
         self.frames += len(pos)

@@ -95,13 +95,13 @@ class Design:
     local: list[np.ndarray]
 
     def predict(self, coefs: dict[str, float], local: dict[str, np.ndarray] | None = None) -> np.ndarray:
-        """base + sum coef * col (+ per-run columns with per-row coefficients ``local[name]`` (B,))."""
+        """Return base + sum coef * col (+ per-run columns with per-row coefficients ``local[name]`` (B,))."""
         out = self.base.copy()
-        for n, c in zip(self.names, self.cols):
+        for n, c in zip(self.names, self.cols, strict=False):
             v = coefs.get(n, 0.0)
             if v:
                 out += v * c
-        for n, c in zip(self.local_names, self.local):
+        for n, c in zip(self.local_names, self.local, strict=False):
             if local and n in local:
                 out += local[n][:, None, None] * c
         return out
@@ -141,13 +141,13 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
             t = a.effect.force_terms(ctx, a.nl)
             if t.fixed is not None:
                 base += t.fixed
-            for n, c, s in zip(t.names, t.cols, t.support):
+            for n, c, s in zip(t.names, t.cols, t.support, strict=False):
                 q = f"{a.name}.{n}"
                 if only is None or q in only:
                     names.append(q)
                     cols.append(c)
                     sup.append(np.asarray(s, bool))
-            for n, c in zip(t.local_names, t.local):
+            for n, c in zip(t.local_names, t.local, strict=False):
                 lnames.append(f"{a.name}.{n}")
                 lcols.append(c)
         stack = np.stack([base, *cols, *lcols])
@@ -169,13 +169,13 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
     cols = list(stack[1:1 + len(names)])
     lcols = list(stack[1 + len(names):])
     prediction = base.copy()
-    for n, c in zip(names, cols):
+    for n, c in zip(names, cols, strict=False):
         v = coefs.get(n, 0.0)
         if v:
             prediction += v * c
     for a in config.stage("sensor"):
         t = a.effect.sensor_terms(ctx, a.nl, prediction)
-        for n, c, s in zip(t.names, t.cols, t.support):
+        for n, c, s in zip(t.names, t.cols, t.support, strict=False):
             q = f"{a.name}.{n}"
             if only is None or q in only:
                 names.append(q)

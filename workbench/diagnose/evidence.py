@@ -65,12 +65,14 @@ class EvidenceSettings:
     peak_alpha: float = 1e-3
     floor_window_hz: float = 1.2
     #: gait-locked power above ``locked_ratio`` times the noise expectation, significant at ``locked_alpha``
-    locked_ratio: float = 1.5
+    locked_ratio: float = 3.0
     locked_alpha: float = 1e-3
     max_lag_s: float = 1.0
+    #: runs used for the correlation evidence (an even spread over the campaign)
+    correlation_runs: int = 48
     #: trend (drift) test level and smallest reported share of the residual
     trend_alpha: float = 1e-3
-    trend_min_share: float = 0.02
+    trend_min_share: float = 0.05
     angle_bins: int = 8
     phase_bins: int = 16
     time_bins: int = 8
@@ -135,19 +137,44 @@ class Evidence:
 
 
 # ------------------------------------------------------------------------ pieces
-def gait_locked(run: RunResidual, cutoff_hz: float) -> np.ndarray:
-    """The part of the run's residual (fit ticks) that repeats every stroke: harmonic regression on f."""
+#: harmonics of the gait in the stroke-locked part (a stroke's misfit lives in its first few)
+MAX_HARMONICS = 12
+
+
+def _harmonic_fit(run: RunResidual, cutoff_hz: float):
+    """Harmonic regression of the run's residual on its gait frequency: (k, amplitudes^2 (k, 6), locked part).
+
+    Cached on the run (a residual is analysed several times per step).
+    """
+    cache = run.__dict__.setdefault("_locked", {})
+    if cutoff_hz in cache:
+        return cache[cutoff_hz]
     t = run.time_s[run.fit]
     e = run.resid[run.fit]
     if not np.isfinite(run.freq) or run.freq <= 0 or len(t) < 8:
-        return np.zeros_like(e)
+        cache[cutoff_hz] = (0, np.zeros((0, 6)), np.zeros_like(e))
+        return cache[cutoff_hz]
     k = max(1, int(np.floor(cutoff_hz / run.freq)))
-    k = min(k, max(1, (len(t) - 2) // 4))
-    w = 2 * np.pi * run.freq * t
-    x = np.column_stack([np.ones_like(t)] + [f(j * w) for j in range(1, k + 1) for f in (np.sin, np.cos)])
-    coef, *_ = np.linalg.lstsq(x, e, rcond=None)
+    k = min(k, max(1, (len(t) - 2) // 4), MAX_HARMONICS)
+    w = 2 * np.pi * run.freq * (t - t[0])
+    j = np.arange(1, k + 1)
+    x = np.concatenate([np.ones((len(t), 1)), np.sin(np.outer(w, j)), np.cos(np.outer(w, j))], axis=1)
+    g = x.T @ x
+    coef = np.linalg.solve(g + 1e-9 * np.trace(g) / len(g) * np.eye(len(g)), x.T @ e)
     locked = x @ coef
-    return locked - locked.mean(axis=0)
+    amp2 = coef[1:k + 1] ** 2 + coef[k + 1:] ** 2
+    cache[cutoff_hz] = (k, amp2, locked - locked.mean(axis=0))
+    return cache[cutoff_hz]
+
+
+def gait_locked(run: RunResidual, cutoff_hz: float) -> np.ndarray:
+    """The part of the run's residual (fit ticks) that repeats every stroke."""
+    return _harmonic_fit(run, cutoff_hz)[2]
+
+
+def harmonic_tolerance(run: RunResidual) -> float:
+    """How close (Hz) a frequency must be to a gait harmonic to be confused with it in this run."""
+    return 0.8 / max(run.fit.sum() * run.dt_s, 1e-9)
 
 
 def _segment(n_ticks: int, dt: float, seconds: float) -> int:
@@ -193,7 +220,8 @@ def find_peaks(freqs, psd, floor, dof, s: EvidenceSettings) -> list[Peak]:
     nb = max(1, int(band.sum()))
     ratio = psd / floor
     # Under noise, psd/floor ~ chi2(dof)/dof; Bonferroni over bins and channels.
-    crit = stats.chi2.isf(s.peak_alpha / (nb * 6), dof) / dof
+    nc = psd.shape[1]
+    crit = stats.chi2.isf(s.peak_alpha / (nb * nc), dof) / dof
     hit = band[:, None] & (ratio >= max(s.peak_ratio, crit))
     peaks: list[Peak] = []
     rows = np.flatnonzero(hit.any(axis=1))
@@ -207,7 +235,7 @@ def find_peaks(freqs, psd, floor, dof, s: EvidenceSettings) -> list[Peak]:
         g = np.array(g)
         score = (ratio[g] * hit[g]).max(axis=1)
         i = int(g[np.argmax(score)])
-        chans = [WRENCH_CHANNELS[c] for c in range(6) if hit[g, c].any()]
+        chans = [WRENCH_CHANNELS[c] for c in range(nc) if hit[g, c].any()]
         # parabolic interpolation of the peak in the strongest channel
         c0 = int(np.argmax(ratio[i]))
         fi = freqs[i]
@@ -217,31 +245,77 @@ def find_peaks(freqs, psd, floor, dof, s: EvidenceSettings) -> list[Peak]:
             if den < 0:
                 fi = freqs[i] + 0.5 * (y0 - y2) / den * (freqs[1] - freqs[0])
         p = float(stats.chi2.sf(ratio[i, c0] * dof, dof))
-        peaks.append(Peak(float(fi), chans, {WRENCH_CHANNELS[c]: float(ratio[g, c].max()) for c in range(6)
+        peaks.append(Peak(float(fi), chans, {WRENCH_CHANNELS[c]: float(ratio[g, c].max()) for c in range(nc)
                                              if hit[g, c].any()}, p))
     return peaks
 
 
-def locked_test(runs, locked_parts, freqs, psd, s: EvidenceSettings):
-    """Gait-locked power against what noise of the measured floor would put at the harmonics."""
+def _harmonic_amp2(run: RunResidual, e: np.ndarray, k: int) -> np.ndarray:
+    """Squared amplitudes (k, 6) of the first k gait harmonics of ``e`` (fit ticks)."""
+    t = run.time_s[run.fit]
+    w = 2 * np.pi * run.freq * (t - t[0])
+    j = np.arange(1, k + 1)
+    x = np.concatenate([np.ones((len(t), 1)), np.sin(np.outer(w, j)), np.cos(np.outer(w, j))], axis=1)
+    g = x.T @ x
+    coef = np.linalg.solve(g + 1e-9 * np.trace(g) / len(g) * np.eye(len(g)), x.T @ e)
+    return coef[1:k + 1] ** 2 + coef[k + 1:] ** 2
+
+
+def _clock_jitter(runs: list[RunResidual], cutoff_hz: float) -> dict[int, np.ndarray]:
+    """Per-run timing misalignment: the residual part ``(delta_r - median delta) dF/dt`` of each run.
+
+    Ingest aligns clocks on trigger edges sampled at the load cell's rate, which leaves each run
+    off by a fraction of a millisecond; the residual then holds ``delta_r`` times the force's
+    rate, locked to the stroke but not a model error. Only the run-to-run scatter is discounted:
+    a delay common to all runs (a servo lag) stays in the residual.
+    """
+    deltas, rates = {}, {}
+    for run in runs:
+        if run.fit.sum() < 16:
+            continue
+        e = run.resid[run.fit]
+        d = np.gradient(run.predicted, run.dt_s, axis=0)[run.fit]
+        w = 1.0 / np.maximum(e.var(axis=0), 1e-300)
+        den = float((w * d * d).sum())
+        if den <= 0:
+            continue
+        deltas[run.index] = float((w * e * d).sum()) / den
+        rates[run.index] = d
+    if len(deltas) < 3:
+        return {}
+    med = float(np.median(list(deltas.values())))
+    return {i: -(deltas[i] - med) * rates[i] for i in deltas}
+
+
+def locked_test(runs, freqs, psd, s: EvidenceSettings, cutoff_hz: float = 6.0, lines: tuple[float, ...] = ()):
+    """Gait-locked power against what noise of the measured floor would put at the harmonics.
+
+    Harmonics that fall on a known residual line (``lines``) are left out: that power is the line's.
+    """
     observed = np.zeros(6)
     expected = np.zeros(6)
     dof = 0.0
-    for run, lp in zip(runs, locked_parts):
+    jitter = _clock_jitter(runs, cutoff_hz)
+    for run in runs:
         t = run.time_s[run.fit]
-        if len(t) < 8 or not np.isfinite(run.freq) or run.freq <= 0:
+        k, amp2, _ = _harmonic_fit(run, cutoff_hz)
+        if k == 0:
             continue
+        if run.index in jitter:
+            amp2 = _harmonic_amp2(run, run.resid[run.fit] + jitter[run.index], k)
         dur = len(t) * run.dt_s
-        k = max(1, int(np.floor(s.fmax_hz / run.freq)))
-        k = min(k, max(1, (len(t) - 2) // 4))
         hf = run.freq * np.arange(1, k + 1)
-        # a fitted sinusoid at f takes about 2 S(f) / (2 T) = S(f)/T of the noise variance (one-sided S)
+        tol = harmonic_tolerance(run)
+        keep = np.array([all(abs(h - f) > tol for f in lines) for h in hf])
+        if not keep.any():
+            continue
+        # a fitted sinusoid at f takes about S(f)/T of the noise power per sample (one-sided S)
         s_h = np.stack([np.interp(hf, freqs, psd[:, c]) for c in range(6)], axis=1)
         # the remainder lost the 2k+1 fitted degrees of freedom of the band up to k f (of 2 k f T)
         lost = min(0.9, (2 * k + 1) / (2 * k * run.freq * dur))
-        expected += s_h.sum(axis=0) / (1 - lost) / dur * len(t)
-        observed += (lp ** 2).sum(axis=0)
-        dof += 2 * k
+        expected += s_h[keep].sum(axis=0) / (1 - lost) / dur * len(t)
+        observed += amp2[keep].sum(axis=0) / 2 * len(t)
+        dof += 2 * keep.sum()
     ratio = observed / np.maximum(expected, 1e-300)
     p = stats.chi2.sf(ratio * dof, dof) if dof else np.ones(6)
     return ratio, p
@@ -288,7 +362,7 @@ def correlations(runs: list[RunResidual], inputs: dict[str, list[np.ndarray]], s
         r_sum = np.zeros((2 * lmax + 1, 6))
         v_sum = np.zeros((2 * lmax + 1, 6))
         n_sum = 0
-        for run, x, a_e in zip(runs, series, acfs):
+        for run, x, a_e in zip(runs, series, acfs, strict=False):
             if a_e is None:
                 continue
             e = run.resid[run.fit]
@@ -356,15 +430,65 @@ def trend_test(runs: list[RunResidual], s: EvidenceSettings) -> dict[str, dict]:
     return out
 
 
+def _near_harmonic(f: float, gait_hz: float, tol_hz: float) -> bool:
+    if not np.isfinite(gait_hz) or gait_hz <= 0:
+        return False
+    k = max(1, round(f / gait_hz))
+    return abs(f - k * gait_hz) <= tol_hz
+
+
+def line_scan(runs: list[RunResidual], parts: list[np.ndarray], settings: EvidenceSettings, step_hz: float = 0.02):
+    """Periodogram of each run's remainder at a fine frequency grid (full-run resolution), summed over runs.
+
+    Each run contributes ``|sum e(t) exp(-i w t)|^2 / N`` per channel (a fitted sinusoid's gain per
+    sample), so a line keeps the resolution 1/T of the whole run, finer than a Welch segment.
+    Returns ``(freqs, scan (F, 6), dof)``.
+    """
+    freqs = np.arange(settings.fmin_hz, settings.fmax_hz + 1e-9, step_hz)
+    total = np.zeros((len(freqs), 6))
+    scales = []
+    for run, e in zip(runs, parts):
+        t = run.time_s[run.fit][::2]
+        x = e[::2]
+        if len(t) < 8:
+            continue
+        ph = 2 * np.pi * np.outer(t, freqs)
+        p = ((x.T @ np.sin(ph)) ** 2 + (x.T @ np.cos(ph)) ** 2).T / len(t)
+        total += p
+        scales.append(np.median(p, axis=0))
+    if not scales:
+        return freqs, total, 2.0
+    sc = np.asarray(scales)
+    dof = float(np.min(2.0 * sc.sum(axis=0) ** 2 / np.maximum((sc ** 2).sum(axis=0), 1e-300)))
+    return freqs, total, dof
+
+
 def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0) -> list[Peak]:
-    """Only the narrowband peaks of the non-locked residual (what the candidate search needs)."""
+    """Lines in the non-locked residual that are locked to nothing the rig does.
+
+    A line that sits on a gait harmonic of the runs it comes from may be leakage of the
+    stroke-locked misfit: each line must stand on its own in the runs whose harmonics miss it.
+    """
     s = settings or EvidenceSettings()
-    locked = [gait_locked(r, cutoff_hz) for r in runs]
-    rest_parts = [r.resid[r.fit] - r.resid[r.fit].mean(axis=0) - lp for r, lp in zip(runs, locked)]
-    freqs, psd, dof = rest_spectrum(runs, rest_parts, s)
-    if len(freqs) <= 4:
+    runs = [r for r in runs if r.fit.sum() >= 16]
+    if len(runs) < 2:
         return []
-    return find_peaks(freqs, psd, spectral_floor(freqs, psd, s.floor_window_hz), dof, s)
+    parts = [r.resid[r.fit] - r.resid[r.fit].mean(axis=0) - gait_locked(r, cutoff_hz) for r in runs]
+    freqs, scan, dof = line_scan(runs, parts, s)
+    found = find_peaks(freqs, scan, spectral_floor(freqs, scan, s.floor_window_hz), dof, s)
+    out = []
+    for p in found:
+        off = [i for i, r in enumerate(runs) if not _near_harmonic(p.frequency_hz, r.freq, harmonic_tolerance(r))]
+        if len(off) == len(runs):
+            out.append(p)
+            continue
+        if len(off) < 2:
+            continue
+        f2, sc2, dof2 = line_scan([runs[i] for i in off], [parts[i] for i in off], s)
+        again = find_peaks(f2, sc2, spectral_floor(f2, sc2, s.floor_window_hz), dof2, s)
+        if any(abs(q.frequency_hz - p.frequency_hz) <= 0.06 for q in again):
+            out.append(p)
+    return out
 
 
 def analyse(runs: list[RunResidual], settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0,
@@ -372,23 +496,25 @@ def analyse(runs: list[RunResidual], settings: EvidenceSettings | None = None, c
     """Evidence from run residuals (analysis ticks)."""
     s = settings or EvidenceSettings()
     locked = [gait_locked(r, cutoff_hz) for r in runs]
-    rest_parts = [r.resid[r.fit] - r.resid[r.fit].mean(axis=0) - lp for r, lp in zip(runs, locked)]
+    rest_parts = [r.resid[r.fit] - r.resid[r.fit].mean(axis=0) - lp for r, lp in zip(runs, locked, strict=False)]
     all_e = np.concatenate([r.resid[r.fit] for r in runs])
     mse = (all_e ** 2).mean(axis=0)
     locked_var = np.concatenate(locked).var(axis=0) if locked else np.zeros(6)
     freqs, psd, dof = rest_spectrum(runs, rest_parts, s)
     floor = spectral_floor(freqs, psd, s.floor_window_hz)
-    peaks = find_peaks(freqs, psd, floor, dof, s) if len(freqs) > 4 else []
-    l_ratio, l_p = locked_test(runs, locked, freqs, psd, s)
+    lines = peaks(runs, s, cutoff_hz)
+    l_ratio, l_p = locked_test(runs, freqs, psd, s, cutoff_hz, tuple(p.frequency_hz for p in lines))
     inputs = {"theta_h": [r.theta_h for r in runs], "theta_k": [r.theta_k for r in runs],
               "omega_h": [r.omega_h for r in runs], "omega_k": [r.omega_k for r in runs]}
     if model_force is not None:
         # the model's own force (channel by channel) and its first two derivatives
         inputs["model_force"] = model_force
-        inputs["model_force_rate"] = [np.gradient(f, r.dt_s, axis=0) for f, r in zip(model_force, runs)]
+        inputs["model_force_rate"] = [np.gradient(f, r.dt_s, axis=0) for f, r in zip(model_force, runs, strict=False)]
         inputs["model_force_accel"] = [np.gradient(np.gradient(f, r.dt_s, axis=0), r.dt_s, axis=0)
-                                       for f, r in zip(model_force, runs)]
-    lags, acf, acf_bound, ccf = correlations(runs, inputs, s)
+                                       for f, r in zip(model_force, runs, strict=False)]
+    pick = np.unique(np.linspace(0, len(runs) - 1, min(len(runs), s.correlation_runs)).round().astype(int))
+    lags, acf, acf_bound, ccf = correlations([runs[i] for i in pick], {k: [v[i] for i in pick]
+                                                                        for k, v in inputs.items()}, s)
     by_flow = {}
     for u in sorted({round(r.flow, 3) for r in runs}):
         e = np.concatenate([r.resid[r.fit] for r in runs if round(r.flow, 3) == u])
@@ -416,6 +542,76 @@ def analyse(runs: list[RunResidual], settings: EvidenceSettings | None = None, c
         locked_share={c: float(locked_var[i] / max(mse[i], 1e-300)) for i, c in enumerate(chs)},
         locked_ratio={c: float(l_ratio[i]) for i, c in enumerate(chs)},
         locked_p={c: float(l_p[i]) for i, c in enumerate(chs)},
-        freqs=freqs, psd_rest=psd, floor=floor, dof=dof, peaks=peaks, acf_lags_s=lags, acf=acf,
+        freqs=freqs, psd_rest=psd, floor=floor, dof=dof, peaks=lines, acf_lags_s=lags, acf=acf,
         acf_bound=acf_bound, ccf=ccf, by_flow=by_flow, by_angle=by_angle, by_phase=by_phase, trend=trend,
         zero_flow=zero_flow, rest=rest)
+
+
+def tone_scan(runs: list[RunResidual], gains: list[np.ndarray], weights: np.ndarray,
+              settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0, step_hz: float = 0.02):
+    """Scan for a tone carried by the flow: the least-squares gain of ``g(t) sin(2 pi f t + phase_run)``.
+
+    A flow tone enters the force as ``g(t) sin(2 pi f t)`` with ``g = U dF/dU`` swinging with the
+    stroke, which spreads it into sidebands that differ run to run, so it hardly shows in a plain
+    spectrum. Fitting it with a free phase per run is a demodulation: with ``Z = sum_c w_c g_c r_c``
+    and ``G = sum_c w_c g_c^2`` the gain of one run is ``b' A^-1 b`` with ``b`` the Fourier sums of
+    ``Z`` and ``A`` those of ``G``. Runs without flow carry no such tone and are left out.
+    Returns ``(freqs, scan, dof)``: the summed gain per frequency and its chi-square degrees of freedom.
+    """
+    s = settings or EvidenceSettings()
+    freqs = np.arange(s.fmin_hz, s.fmax_hz + 1e-9, step_hz)
+    total = np.zeros(len(freqs))
+    scales = []
+    for run, g in zip(runs, gains, strict=False):
+        gg = g[run.fit]
+        if not np.any(np.abs(gg) > 0) or run.fit.sum() < 16:
+            continue
+        e = run.resid[run.fit]
+        e = e - e.mean(axis=0) - gait_locked(run, cutoff_hz)
+        # every other tick is plenty below the low-pass cutoff
+        z = (weights * gg * e).sum(axis=1)[::2]
+        big = (weights * gg * gg).sum(axis=1)[::2]
+        t = run.time_s[run.fit][::2]
+        ph = 2 * np.pi * np.outer(t, freqs)
+        sn, cs = np.sin(ph), np.cos(ph)
+        b1, b2 = z @ sn, z @ cs
+        a11, a22, a12 = big @ (sn * sn), big @ (cs * cs), big @ (sn * cs)
+        det = np.maximum(a11 * a22 - a12 ** 2, 1e-300)
+        gain = (a22 * b1 ** 2 - 2 * a12 * b1 * b2 + a11 * b2 ** 2) / det
+        total += gain
+        scales.append(np.median(gain))
+    if not scales:
+        return freqs, total, 2.0
+    sc = np.asarray(scales)
+    dof = 2.0 * sc.sum() ** 2 / max((sc ** 2).sum(), 1e-300)
+    return freqs, total, dof
+
+
+def flow_tone_peaks(runs: list[RunResidual], gains: list[np.ndarray], weights: np.ndarray,
+                    settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0) -> list[Peak]:
+    """Peaks of :func:`tone_scan` above its running-median floor (channels: where the flow acts)."""
+    s = settings or EvidenceSettings()
+    freqs, scan, dof = tone_scan(runs, gains, weights, s, cutoff_hz)
+    if not np.any(scan > 0):
+        return []
+    floor = spectral_floor(freqs, scan[:, None], s.floor_window_hz)
+    found = []
+    for p in find_peaks(freqs, scan[:, None], floor, dof, s):
+        # like a plain line, a flow tone must stand in the runs whose gait harmonics miss it
+        off = [i for i, r in enumerate(runs) if not _near_harmonic(p.frequency_hz, r.freq, harmonic_tolerance(r))]
+        if len(off) == len(runs):
+            found.append(p)
+            continue
+        if len(off) < 2:
+            continue
+        f2, sc2, dof2 = tone_scan([runs[i] for i in off], [gains[i] for i in off], weights, s, cutoff_hz)
+        if not np.any(sc2 > 0):
+            continue
+        again = find_peaks(f2, sc2[:, None], spectral_floor(f2, sc2[:, None], s.floor_window_hz), dof2, s)
+        if any(abs(q.frequency_hz - p.frequency_hz) <= 0.06 for q in again):
+            found.append(p)
+    share = np.zeros(6)
+    for run, g in zip(runs, gains, strict=False):
+        share += (weights * g[run.fit] ** 2).sum(axis=0)
+    chans = [WRENCH_CHANNELS[c] for c in range(6) if share[c] >= 0.1 * share.max()]
+    return [Peak(p.frequency_hz, chans, {c: p.ratio.get("fx_n", np.nan) for c in chans}, p.p) for p in found]

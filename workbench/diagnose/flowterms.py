@@ -103,12 +103,12 @@ class LegKinematics:
         c_vel = self.wh[..., None] * _perp(st.c)
         a_vel = (self.wh + self.wk)[..., None] * _perp(st.a)
         thigh_normal = _perp(st.c / g.oc_m)
-        for s, w in zip(s01, w01):
+        for s, w in zip(s01, w01, strict=False):
             yield s * st.c, s * c_vel, thigh_normal, w * g.oc_m
         # the calf's points are C + kappa A: B at kappa = 1, the web's near edge at kappa_end
         calf_len = g.bq_over_bc * g.bc_m - g.web_side_m / 2
         kappa_end = 1.0 - calf_len / g.oa_m
-        for s, w in zip(s01, w01):
+        for s, w in zip(s01, w01, strict=False):
             kap = 1.0 + s * (kappa_end - 1.0)
             yield st.c + kap * st.a, c_vel + kap * a_vel, st.normal, w * calf_len
 
@@ -141,16 +141,21 @@ class LegKinematics:
 def first_order_lag(u: np.ndarray, rate_per_s: np.ndarray | float, dt_s: float) -> np.ndarray:
     """Integrate ``dx/dt = rate (u - x)`` along axis 1 of ``u`` (B, T, ...), from ``x = u[:, 0]``.
 
-    Each step is the exact exponential update for the mid-step input (second-order accurate for
-    smooth inputs, stable for any ``rate * dt``); the rate may change every tick.
+    Each step is exact for an input linear over the step at the step's mean rate (first-order
+    hold): accurate at the 65 Hz ticks and stable for any ``rate * dt``; the rate may change
+    every tick.
     """
     u = np.asarray(u, float)
     rate = np.broadcast_to(np.asarray(rate_per_s, float), u.shape[:2])
-    gain = -np.expm1(-rate * dt_s).reshape(u.shape[:2] + (1,) * (u.ndim - 2))
+    r = 0.5 * (rate[:, 1:] + rate[:, :-1]) * dt_s                  # (B, T-1) rate * dt per step
+    e = np.exp(-r)
+    g = np.where(r > 1e-9, -np.expm1(-r) / np.maximum(r, 1e-300), 1.0 - r / 2)  # (1 - e) / r
+    shape = r.shape + (1,) * (u.ndim - 2)
+    e, g = e.reshape(shape), g.reshape(shape)
     out = np.empty_like(u)
-    x = u[:, 0].copy()
-    out[:, 0] = x
+    out[:, 0] = u[:, 0]
     for k in range(1, u.shape[1]):
-        x += gain[:, k] * (0.5 * (u[:, k - 1] + u[:, k]) - x)
-        out[:, k] = x
+        u0, u1 = u[:, k - 1], u[:, k]
+        # exact response to a ramp from u0 to u1: x1 = u1 + e (x0 - u0) - (1 - e) / (r dt) (u1 - u0)
+        out[:, k] = u1 + e[:, k - 1] * (out[:, k - 1] - u0) - g[:, k - 1] * (u1 - u0)
     return out

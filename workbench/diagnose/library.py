@@ -213,3 +213,45 @@ class EffectLibrary:
     def without(self, *names: str) -> "EffectLibrary":
         """The library less some effects."""
         return EffectLibrary([e for e in self.effects if e.name not in names])
+
+
+def registry() -> dict[str, type[Effect]]:
+    """Every library effect class by canonical name."""
+    from workbench.diagnose.effects_fluid import FLUID_EFFECTS
+    from workbench.diagnose.effects_rig import RIG_EFFECTS
+
+    return {cls.name: cls for cls in (*FLUID_EFFECTS, *RIG_EFFECTS)}
+
+
+def effect_options(effect: Effect) -> dict:
+    """Constructor options of an effect (JSON-serialisable), so a saved model rebuilds it exactly."""
+    if effect.name == "loadcell_crosstalk":
+        return {"pairs": [list(p) for p in effect.pairs], "aliases": dict(effect.aliases)}
+    if effect.name == "link_drag":
+        return {"x_m": effect.x_m, "quadrature": effect.quadrature}
+    if effect.name == "circulatory_lag":
+        return {"c_r": effect.c_r, "chord_m": effect.chord_m, "speed_floor_mps": effect.floor}
+    return {}
+
+
+def make_effect(name: str, options: dict | None = None) -> Effect:
+    """Build a library effect by name with its options."""
+    from workbench.errors import ModelError
+
+    reg = registry()
+    if name not in reg:
+        raise ModelError(f"unknown effect {name!r}", hint=f"known: {', '.join(sorted(reg))}")
+    opts = dict(options or {})
+    if name == "loadcell_crosstalk" and "pairs" in opts:
+        opts["pairs"] = [tuple(p) for p in opts["pairs"]]
+    return reg[name](**opts)
+
+
+def default_library(names: list[str] | None = None, link_x_m: float = 0.01, link_quadrature: int = 4,
+                    circulatory_c_r: float = 0.7) -> EffectLibrary:
+    """The documented library (docs/diagnose.md), optionally restricted to ``names``."""
+    reg = registry()
+    names = list(reg) if not names else list(names)
+    opts = {"link_drag": {"x_m": link_x_m, "quadrature": link_quadrature},
+            "circulatory_lag": {"c_r": circulatory_c_r}}
+    return EffectLibrary([make_effect(n, opts.get(n)) for n in names])

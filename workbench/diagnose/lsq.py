@@ -123,7 +123,7 @@ class Fit:
 
     def coefs(self) -> dict[str, float]:
         """Shared coefficients by name."""
-        return {n: float(v) for n, v in zip(self.names, self.theta)}
+        return {n: float(v) for n, v in zip(self.names, self.theta, strict=False)}
 
     def stderr(self) -> dict[str, float]:
         """Standard errors by name."""
@@ -216,7 +216,17 @@ def fit(gr: Grams, w: np.ndarray, hac_lags: int = 2, fixed: dict[str, float] | N
                        + np.einsum("ni,nij,nj->n", tc, gr.G[c], tc))
     # sandwich covariance over training blocks (scores of the free shared coefficients)
     scores = bw[:, fi] - np.einsum("nij,nj->ni", gw[:, fi, :], th_block)
-    cov_f = _hac_cov(a_s, scores[train], gr.run[train], gr.order[train], hac_lags)
+    n_runs = len(np.unique(gr.run[train]))
+    if n_runs >= len(fi) + 5:
+        # clusters = runs: a misfit that persists through a run (a clock offset, a per-run bias)
+        # correlates all its blocks, which a few Newey-West lags would miss
+        rs = gr.run[train]
+        u, inv = np.unique(rs, return_inverse=True)
+        per_run = np.zeros((len(u), len(fi)))
+        np.add.at(per_run, inv, scores[train])
+        cov_f = _hac_cov(a_s, per_run, u, np.zeros(len(u), int), 0)
+    else:
+        cov_f = _hac_cov(a_s, scores[train], gr.run[train], gr.order[train], hac_lags)
     cov = np.full((k, k), 0.0)
     cov[np.ix_(fi, fi)] = cov_f
     return Fit(list(gr.names), theta, local, local_info, cov, np.maximum(sse, 0.0), np.maximum(sse_c, 0.0))
@@ -237,7 +247,10 @@ def _hac_cov(bread_inv: np.ndarray, scores: np.ndarray, run: np.ndarray, order: 
             c = s[lag:][same].T @ s[:-lag][same]
             meat += wl * (c + c.T)
     ai = _inv(bread_inv)
-    return ai @ meat @ ai
+    # small-sample correction of the cluster sandwich: blocks / (blocks - parameters)
+    n, k = scores.shape
+    scale = n / (n - k) if n > k + 1 else float(n)
+    return ai @ meat @ ai * scale
 
 
 def heldout_test(sse_before: np.ndarray, sse_after: np.ndarray, gr: Grams, hac_lags: int = 2,

@@ -144,3 +144,22 @@ def run_residuals(problem: Problem, config: Configuration, fit: lsq.Fit | None =
                 omega_k=m.omega_k_dps[i, v], measured=rs.y[i, v], predicted=pred[i, v]))
     out.sort(key=lambda r: r.index)
     return out
+
+
+def flow_gains(problem: Problem, config: Configuration) -> list[np.ndarray]:
+    """Per run (index order, valid ticks): g = U dW/dU of the model on the configuration's motion."""
+    from workbench.diagnose.effects_rig import FlowUnsteadiness
+    from workbench.diagnose.library import Context
+
+    fu = FlowUnsteadiness()
+    out = {}
+    for rs in problem.campaign.sets:
+        motion = rs.motion
+        for a in config.stage("input"):
+            motion = a.effect.transform_motion(motion, a.nl)
+        g = fu.gain(Context(rs, problem.model, motion, problem.geometry))
+        if problem.lowpass is not None:
+            g = problem.lowpass(g, rs.dt_s, axis=-2)
+        for i in range(rs.shape[0]):
+            out[int(rs.index[i])] = g[i, rs.valid[i]]
+    return [out[k] for k in sorted(out)]

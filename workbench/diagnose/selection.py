@@ -47,6 +47,10 @@ class SelectionSettings:
     tone_window_hz: float = 0.12
     #: Nelder-Mead evaluations per nonlinear parameter in refinements
     refine_evals: int = 14
+    #: tone candidates tried per step (the strongest residual lines)
+    max_peaks: int = 2
+    #: half-width (log units) of a warm-started 1-D search around the last optimum
+    warm_window: float = 0.7
 
 
 @dataclass
@@ -102,18 +106,21 @@ def block_llr(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams) -> np.ndarray:
 
 def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correction: np.ndarray | None = None):
     """Held-out test of ``after`` against ``before``: t, p, llr and per-channel relative MSE reduction."""
-    h = gr.heldout
-    llr = block_llr(before, after, gr).sum(axis=1)
+    raw = block_llr(before, after, gr).sum(axis=1)
+    llr = raw - correction if correction is not None else raw
+    # blocks the candidate leaves untouched (a flow term at zero flow) carry no evidence either way
+    touched = np.abs(raw) > 1e-9 * max(np.abs(raw).max(), 1e-300)
     if correction is not None:
-        llr = llr - correction
+        touched |= np.abs(correction) > 0
+    h = gr.heldout & touched
     g = llr[h]
     n = len(g)
-    sb = before.sse_block_c[h].sum(axis=0)
-    sa = after.sse_block_c[h].sum(axis=0)
+    sb = before.sse_block_c[gr.heldout].sum(axis=0)
+    sa = after.sse_block_c[gr.heldout].sum(axis=0)
     gain_c = np.where(sb > 0, (sb - sa) / np.maximum(sb, 1e-300), 0.0)
     if correction is not None:
         # the per-run nuisance fit gains on noise too: count only what beats the off-peak fits
-        gain_c = gain_c * max(0.0, g.sum()) / max(block_llr(before, after, gr).sum(axis=1)[h].sum(), 1e-300)
+        gain_c = gain_c * max(0.0, g.sum()) / max(raw[h].sum(), 1e-300)
     if n < 3:
         return {"t": 0.0, "p": 1.0, "llr": float(g.sum()), "n_blocks": n}, gain_c
     mean = g.mean()
@@ -149,7 +156,7 @@ class StepwiseSelection:
         def objective(values) -> float:
             key = tuple(round(float(v), 10) for v in values)
             if key not in cache:
-                nl = dict(zip(pnames, key))
+                nl = dict(zip(pnames, key, strict=False))
                 cfg = config.with_effect(Active(effect, nl))
                 extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
                 gr = problem.grams(cfg, coefs, names + extra, sets="search")
@@ -170,15 +177,18 @@ class StepwiseSelection:
         hi = np.array([np.log(p.bounds[1]) if p.log else p.bounds[1] for p in params])
 
         def to_x(v):
-            return np.array([np.log(max(x, 1e-300)) if lg else x for x, lg in zip(v, logs)])
+            return np.array([np.log(max(x, 1e-300)) if lg else x for x, lg in zip(v, logs, strict=False)])
 
         def from_x(x):
             x = np.clip(x, lo, hi)
-            return [float(np.exp(v)) if lg else float(v) for v, lg in zip(x, logs)]
+            return [float(np.exp(v)) if lg else float(v) for v, lg in zip(x, logs, strict=False)]
 
         x0 = to_x(best)
+        warm = start is not None and grids is None
         if len(params) == 1:
             step = 0.25 if logs[0] else max(0.02 * abs(x0[0]), 0.01)
+            if warm:
+                step = self.settings.warm_window if logs[0] else max(0.2 * abs(x0[0]), 0.05)
             if grids and pnames[0] in grids and len(grids[pnames[0]]) > 1:
                 step = float(np.diff(grids[pnames[0]]).mean())
             res = optimize.minimize_scalar(lambda x: objective(from_x(np.array([x]))),
@@ -199,7 +209,7 @@ class StepwiseSelection:
         if objective(out) > objective(best):
             out = best
         profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values())}
-        return dict(zip(pnames, out)), profile
+        return dict(zip(pnames, out, strict=False)), profile
 
     # ------------------------------------------------------------ candidates
     def _linear_candidates(self, problem, config, coefs, names, effects, current) -> list[Candidate]:
@@ -220,13 +230,14 @@ class StepwiseSelection:
             out.append(Candidate(e, Active(e, {}), config.with_effect(Active(e, {})), nm, f))
         return out
 
-    def _nonlinear_candidate(self, problem, config, coefs, names, effect, peak=None) -> Candidate:
+    def _nonlinear_candidate(self, problem, config, coefs, names, effect, peak=None, start=None) -> Candidate:
         grids = None
         if effect.needs_peak:
             f0 = peak.frequency_hz
             hw = self.settings.tone_window_hz
-            grids = {"tone_hz": tuple(np.round(np.linspace(f0 - hw, f0 + hw, 13), 4))}
-        nl, profile = self.search(problem, config, coefs, names, effect, grids)
+            grids = {"tone_hz": tuple(np.round(np.linspace(f0 - hw, f0 + hw, 9), 4))}
+            start = None
+        nl, profile = self.search(problem, config, coefs, names, effect, grids, start=start)
         act = Active(effect, nl)
         cfg = config.with_effect(act)
         nm = names + [f"{effect.name}.{n}" for n in effect.linear_names()]
@@ -261,6 +272,7 @@ class StepwiseSelection:
         steps: list[Step] = []
         table: list[dict] = []
         crosstalk_configured = False
+        last_nl: dict[str, dict] = {}
         for _ in range(s.max_effects):
             remaining = [e for e in library if e.name not in config.names()]
             if not crosstalk_configured and any(e.name == "loadcell_crosstalk" for e in remaining):
@@ -271,12 +283,16 @@ class StepwiseSelection:
             linear = [e for e in remaining if not e.search and not e.needs_peak]
             cands = self._linear_candidates(problem, config, coefs, names, linear, current)
             peaks = peaks_of(config, current) if peaks_of is not None else []
+            strongest = sorted(peaks, key=lambda p: -max(p.ratio.values(), default=0.0))[: s.max_peaks]
             for e in remaining:
                 if e.needs_peak:
-                    for pk in peaks:
+                    for pk in strongest:
                         cands.append(self._nonlinear_candidate(problem, config, coefs, names, e, pk))
                 elif e.search:
-                    cands.append(self._nonlinear_candidate(problem, config, coefs, names, e))
+                    # after the first step, start from the last optimum (the landscape moves little)
+                    c = self._nonlinear_candidate(problem, config, coefs, names, e, start=last_nl.get(e.name))
+                    last_nl[e.name] = dict(c.active.nl)
+                    cands.append(c)
                 if progress:
                     progress(e.name)
             if not cands:
@@ -313,7 +329,36 @@ class StepwiseSelection:
             steps.append(Step(best, before_c, _heldout_mse(current), table, alternatives))
         if s.refine and any(a.effect.search for a in config.actives):
             config, current = self._refine(problem, config, coefs, names, current)
+        config, names, current, steps = self._backward_check(problem, config, names, current, steps)
         return SelectionResult(config, names, current, steps, table)
+
+    def _backward_check(self, problem, config, names, current, steps):
+        """Drop effects that no longer earn their place once the others are final (collinear partners).
+
+        Each effect, weakest first, is removed and the rest refitted; if the held-out test no
+        longer clears the claim criteria for putting it back, it goes.
+        """
+        s = self.settings
+        hac = problem.settings.hac_lags
+        changed = True
+        while changed and len(config.actives) > 1:
+            changed = False
+            level = s.alpha / len(config.actives)
+            verdicts = []
+            for a in config.actives:
+                rest = config.without(a.name)
+                rnames = [n for n in names if not n.startswith(a.name + ".")]
+                f = problem.fit(rest, current.coefs(), rnames)
+                test, gain = judge(f, current, current.grams, hac)
+                verdicts.append((test["llr"], a, rnames, test, gain))
+            llr, a, rnames, test, gain = min(verdicts, key=lambda v: v[0])
+            if test["p"] >= level or gain.max() < s.min_gain:
+                config = config.without(a.name)
+                names = rnames
+                current = problem.fit(config, current.coefs(), names)
+                steps = [st for st in steps if st.candidate.effect.name != a.name]
+                changed = True
+        return config, names, current, steps
 
     def _configure_crosstalk(self, problem, effect, config, coefs):
         rs = problem.campaign.train_sets[0]
@@ -326,11 +371,19 @@ class StepwiseSelection:
         if not e.prunable:
             return cand
         own = [n for n in cand.names if n.startswith(e.name + ".")]
-        se = cand.fit.stderr()
-        co = cand.fit.coefs()
         zc = stats.norm.isf(self.settings.prune_alpha / (2 * max(len(own), 1)))
-        z = {n: abs(co[n]) / se[n] if se[n] > 0 else 0.0 for n in own}
-        keep = [n for n in own if z[n] >= zc] or [max(own, key=z.get)]
+        keep = list(own)
+        gr = cand.fit.grams
+        # backward elimination: drop the weakest entry and refit until every entry left is significant
+        while len(keep) > 1:
+            names = [n for n in cand.names if n not in own] + keep
+            f = lsq.fit(gr.subset(names), problem.weights, problem.settings.hac_lags)
+            co, se = f.coefs(), f.stderr()
+            z = {n: abs(co[n]) / se[n] if se[n] > 0 else 0.0 for n in keep}
+            weakest = min(keep, key=z.get)
+            if z[weakest] >= zc:
+                break
+            keep.remove(weakest)
         if len(keep) == len(own):
             return cand
         names = [n for n in cand.names if n not in own] + keep

@@ -135,7 +135,7 @@ def window_sampler(model: LegForceModel) -> WindowSampler | None:
 
 
 def _agrees_with_model(model: LegForceModel, sampler: WindowSampler) -> bool:
-    """Does the sampler give ``model.wrench``'s last ticks on a few test motions? (float32 nets: 1e-5)."""
+    """Whether the sampler gives ``model.wrench``'s last ticks on a few test motions (float32 nets: 1e-5)."""
     length = sampler.seq_len
     shapes = Shapes(np.array([-20.0, 5.0]), np.array([-50.0, -30.0]), np.array([0.5, 0.31]), -100.0, 80.0,
                     math.pi / 3)
@@ -158,12 +158,21 @@ class CycleSource:
     one cycle, so cubic interpolation needs no wrap-around).
     """
 
-    def __init__(self, model: LegForceModel, *, sim_dt_s: float, phase_samples: int, warmup_s: float):
+    def __init__(self, model: LegForceModel, *, sim_dt_s: float, phase_samples: int, warmup_s: float,
+                 history_order: int = 2, history_phase_stride: int = 2, history_step_mps: float = 0.01):
         self.model = model
         self.sampler = window_sampler(model)
         self.sim_dt_s = float(sim_dt_s)
         self.phase_samples = int(phase_samples)
         self.warmup_s = float(warmup_s)
+        #: window nets: flow-history terms tabulated besides the value (0 none, 1 slope, 2 + curvature)
+        self.history_order = int(history_order) if self.sampler is not None else 0
+        self.history_stride = int(history_phase_stride)
+        self.history_step = float(history_step_mps)
+        if self.history_order not in (0, 1, 2):
+            raise ValueError("history_order must be 0, 1 or 2")
+        if self.history_order and (self.history_stride < 1 or self.phase_samples % self.history_stride):
+            raise ValueError("history_phase_stride must divide phase_samples")
         #: model calls, rows (pairs) and ticks (or windows) predicted so far
         self.calls = 0
         self.pairs = 0
@@ -185,8 +194,46 @@ class CycleSource:
         step = self.phase_step(shapes)
         return (np.floor(1.0 / step + 1e-9).astype(int) + 4)
 
+    @property
+    def n_channels(self) -> int:
+        """Table channels: the wrench (6), then per flow-history term its derivative (6 each)."""
+        return 6 * (1 + self.history_order)
+
+    def history_basis(self) -> np.ndarray:
+        """(order, L) flow-history shapes over a window net's lags m = 0 .. L-1: (m / (L-1))^k, k = 1, 2."""
+        length = self.sampler.seq_len
+        lag = np.arange(length) / max(1, length - 1)
+        return np.stack([lag ** k for k in range(1, self.history_order + 1)]) if self.history_order else \
+            np.zeros((0, length))
+
+    def history_filters(self) -> np.ndarray:
+        """(1 + order, K) causal FIR taps on the simulation tick: the flow now, then history coefficients.
+
+        The coefficients a_k are the least-squares fit sum_k a_k (m / (L-1))^k to the flow's change
+        over the net's window (lags m). The tabulated wrench is then F(U(t)) + sum_k a_k dF/da_k: exact for a memoryless model, and
+        for a window net exact to first order when the flow varies within the window like a
+        quadratic, the part of a slowly varying flow that a constant-flow table misses.
+        """
+        s = self.sampler
+        basis = self.history_basis()                                           # (order, L), zero at lag 0
+        pinv = np.linalg.pinv(basis.T)                                         # (order, L)
+        # fit of U(t - m) - U(t): row weights on the lags, minus their sum on lag 0
+        weights = np.vstack([np.eye(1, s.seq_len), pinv])
+        weights[1:, 0] -= pinv.sum(axis=1)
+        # window lag m sits m * dt_net / dt_sim simulation ticks back: spread it over the two nearest
+        pos = np.arange(s.seq_len) * s.dt_s / self.sim_dt_s
+        k = int(np.ceil(pos[-1] + 1e-9)) + 1
+        taps = np.zeros((weights.shape[0], k))
+        lo = np.floor(pos + 1e-9).astype(int)
+        frac = np.clip(pos - lo, 0.0, 1.0)
+        for m in range(s.seq_len):
+            taps[:, lo[m]] += weights[:, m] * (1 - frac[m])
+            if frac[m] > 0:
+                taps[:, lo[m] + 1] += weights[:, m] * frac[m]
+        return taps
+
     def cycles(self, shapes: Shapes, idx: np.ndarray, flow_mps: np.ndarray, n_out: int) -> np.ndarray:
-        """Wrench samples (n, n_out, 6) of shapes ``idx`` at constant flows ``flow_mps`` (one model call)."""
+        """Samples (n, n_out, channels) of shapes ``idx`` at constant flows ``flow_mps`` (one model call)."""
         idx = np.asarray(idx, int)
         flow = np.asarray(flow_mps, float)
         self.calls += 1
@@ -241,31 +288,57 @@ class CycleSource:
         if denom <= 0 or not np.isfinite(denom):
             return np.ones(1)
         w = np.einsum("nkc,nc->k", resp, total) / denom
-        return w
+        # drop the negligible tail (a memoryless model keeps one weight)
+        keep = np.nonzero(np.abs(w) > 1e-4 * np.abs(w).max())[0]
+        if not keep.size:
+            return np.ones(1)
+        w = w[:keep[-1] + 1]
+        return w / w.sum()  # a constant flow reads the table at itself
 
     def _window_cycles(self, shapes, idx, flow, n_out):
         s = self.sampler
         p = self.phase_samples
+        n = idx.size
         f = shapes.frequency_hz[idx]
         # window ending at phase k/P: ticks k/(P f) - (L-1-l) dt, l = 0..L-1
         ends = np.arange(p)[None, :] / (p * f[:, None])                    # (n, P)
         lags = (np.arange(s.seq_len) - (s.seq_len - 1)) * s.dt_s             # (L,)
-        tau = (ends[:, :, None] + lags[None, None, :]).reshape(idx.size, p * s.seq_len)
+        tau = (ends[:, :, None] + lags[None, None, :]).reshape(n, p * s.seq_len)
         motion = motion_at(shapes, idx, tau, flow, s.dt_s)
-        # regroup into (n * P) windows of L ticks
-        n_win = idx.size * p
 
-        def win(x):
-            return None if x is None else x.reshape(n_win, s.seq_len)
+        def win(x, rows):
+            return x.reshape(n, p, s.seq_len)[:, rows].reshape(-1, s.seq_len)
 
-        windows = LegMotion(s.dt_s, win(motion.theta_h_deg), win(motion.theta_k_deg), win(motion.omega_h_dps),
-                            win(motion.omega_k_dps), win(motion.flow_speed_mps), win(motion.alpha_h_dps2),
-                            win(motion.alpha_k_dps2))
-        self.windows += n_win
-        out = np.asarray(s.predict(windows), float).reshape(idx.size, p, 6)
+        # the constant-flow windows, then the flow-history perturbations at every stride-th phase
+        d_rows = np.arange(0, p, self.history_stride)
+        basis = self.history_basis()[:, ::-1]                                # over window ticks l (lag L-1-l)
+        pieces = [(np.arange(p), np.zeros(s.seq_len))]
+        pieces += [(d_rows, self.history_step * b) for b in basis]
+        cols = [[], [], [], [], [], [], []]
+        for rows, extra in pieces:
+            for c, x in enumerate((motion.theta_h_deg, motion.theta_k_deg, motion.omega_h_dps, motion.omega_k_dps,
+                                   motion.flow_speed_mps, motion.alpha_h_dps2, motion.alpha_k_dps2)):
+                w = win(x, rows)
+                cols[c].append(w + extra if c == 4 else w)
+        windows = LegMotion(s.dt_s, *(np.concatenate(c) for c in cols))
+        self.windows += windows.shape[0]
+        out = np.asarray(s.predict(windows), float)
+        base = out[:n * p].reshape(n, p, 6)
+        parts = [base]
+        at = n * p
+        for _ in range(self.history_order):
+            pert = out[at:at + n * d_rows.size].reshape(n, d_rows.size, 6)
+            at += n * d_rows.size
+            deriv = (pert - base[:, d_rows]) / self.history_step
+            # back to every phase: periodic linear interpolation between the computed ones
+            pos = np.arange(p) / self.history_stride
+            i0 = np.floor(pos).astype(int)
+            t = (pos - i0)[None, :, None]
+            parts.append(deriv[:, i0 % d_rows.size] * (1 - t) + deriv[:, (i0 + 1) % d_rows.size] * t)
+        table = np.concatenate(parts, axis=-1)                               # (n, P, channels)
         # sample j is phase (j - 1) / P: wrap around the periodic cycle
         j = (np.arange(n_out) - 1) % p
-        return out[:, j]
+        return table[:, j]
 
     def _rollout_cycles(self, shapes, idx, flow, n_out):
         dt = self.sim_dt_s

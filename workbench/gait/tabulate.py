@@ -61,10 +61,20 @@ class TabulationSettings:
     fine_flow_factor: int = 4
     #: warm-up before the tabulated cycle for models that are not window nets (s)
     warmup_s: float = 1.0
-    #: read the table at the flow filtered by the model's flow-memory profile
+    #: account for the flow varying within the model's memory (see the module docstring)
     flow_memory: bool = True
-    #: add the direct rollout's start-up transient (computed once, at rest) to the first ticks
+    #: window nets: flow-history terms tabulated with the value (1: slope, 2: slope and curvature)
+    history_order: int = 2
+    #: ... computed at every n-th phase sample (interpolated between)
+    history_phase_stride: int = 2
+    #: ... by finite differences of this size (m/s)
+    history_step_mps: float = 0.01
+    #: the first ticks (the model's memory) straight from the model at the actual flow: a direct
+    #: rollout starts from a padded history, the table from the periodic steady state
     startup_correction: bool = True
+    #: ... recomputed when their flow moved more than this since the last time (m/s; between: the
+    #: table's change is added)
+    startup_tol_mps: float = 0.002
 
     def __post_init__(self):
         if self.mode not in TABULATION_MODES:
@@ -72,9 +82,13 @@ class TabulationSettings:
         if self.interpolation not in INTERPOLATIONS:
             raise ValueError(f"tabulation.interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}")
         if (self.flow_step_mps <= 0 or self.phase_samples < 4 or self.warmup_s < 0 or self.fine_flow_factor < 1
-                or self.fine_phase_samples < 1):
-            raise ValueError("tabulation needs flow_step_mps > 0, phase_samples >= 4, warmup_s >= 0 and "
-                             "positive fine grid sizes")
+                or self.fine_phase_samples < 1 or self.history_step_mps <= 0 or self.startup_tol_mps < 0):
+            raise ValueError("tabulation needs flow_step_mps > 0, phase_samples >= 4, warmup_s >= 0, "
+                             "history_step_mps > 0, startup_tol_mps >= 0 and positive fine grid sizes")
+        if self.history_order not in (0, 1, 2):
+            raise ValueError("tabulation.history_order must be 0, 1 or 2")
+        if self.history_phase_stride < 1 or self.phase_samples % self.history_phase_stride:
+            raise ValueError("tabulation.history_phase_stride must divide phase_samples")
 
     @classmethod
     def from_dict(cls, doc: Mapping[str, Any] | None) -> "TabulationSettings":
@@ -129,10 +143,11 @@ class CycleTable:
         self.n_j = int(self.n_samples.max())
         self.rp = max(1, int(math.ceil(settings.fine_phase_samples * float(self.phase_step.max()) - 1e-9)))
         self.rf = int(settings.fine_flow_factor)
+        self.n_ch = source.n_channels
         self.g_lo = 0
-        self.values = np.zeros((len(shapes), 0, self.n_j, 6))
+        self.values = np.zeros((len(shapes), 0, self.n_j, self.n_ch))
         self.done = np.zeros((len(shapes), 0), bool)
-        self.fine = np.zeros((len(shapes), 0, (self.n_j - 3) * self.rp + 1, 6))
+        self.fine = np.zeros((len(shapes), 0, (self.n_j - 3) * self.rp + 1, self.n_ch))
         self.model_time_s = 0.0
 
     @property
@@ -147,7 +162,7 @@ class CycleTable:
         g_hi = int(hi.max()) if not self.n_nodes else max(int(hi.max()), g_hi_now)
         if not self.n_nodes or g_lo < self.g_lo or g_hi > g_hi_now:
             size = g_hi - g_lo + 1
-            values = np.zeros((len(self.shapes), size, self.n_j, 6))
+            values = np.zeros((len(self.shapes), size, self.n_j, self.n_ch))
             done = np.zeros((len(self.shapes), size), bool)
             a = self.g_lo - g_lo
             if self.n_nodes:
@@ -176,12 +191,12 @@ class CycleTable:
         self.fine = np.ascontiguousarray(_resample(by_phase, 1, pos_g, interp))
 
     def read(self, s_of_leg: np.ndarray, m0: np.ndarray, tp: np.ndarray, flow: np.ndarray) -> np.ndarray:
-        """Bilinear read (N, T, 6) at fine phase positions (m0 + tp) and flows ``flow`` (N, T)."""
+        """Bilinear read (N, T, channels) at fine phase positions (m0 + tp) and flows ``flow`` (N, T)."""
         n_gf, n_jf = self.fine.shape[1], self.fine.shape[2]
         vf = (flow / self.step - self.g_lo) * self.rf
         k0 = np.clip(np.floor(vf).astype(np.int64), 0, n_gf - 2)
         tf = (vf - k0)[..., None]
-        flat = self.fine.reshape(-1, 6)
+        flat = self.fine.reshape(-1, self.n_ch)
         base = (s_of_leg[:, None] * n_gf + k0) * n_jf + m0
         tpc = tp[..., None]
         out = np.take(flat, base, axis=0) * ((1 - tpc) * (1 - tf))
@@ -213,8 +228,10 @@ class TabulatedLegModel(LegForceModel):
         self.leg_shape = inverse.ravel()
         self.shapes = Shapes(uniq[:, 0], uniq[:, 1], uniq[:, 2], gaits.theta_h_max_deg, gaits.theta_k_min_deg,
                              gaits.phi_rad)
-        self.source = CycleSource(inner, sim_dt_s=sim_dt_s, phase_samples=self.settings.phase_samples,
-                                  warmup_s=self.settings.warmup_s)
+        st = self.settings
+        self.source = CycleSource(inner, sim_dt_s=sim_dt_s, phase_samples=st.phase_samples, warmup_s=st.warmup_s,
+                                  history_order=st.history_order if st.flow_memory else 0,
+                                  history_phase_stride=st.history_phase_stride, history_step_mps=st.history_step_mps)
         self.table = CycleTable(self.shapes, self.source, self.settings)
         self._flow_kernel = flow_kernel
         self.interp_time_s = 0.0
@@ -229,8 +246,11 @@ class TabulatedLegModel(LegForceModel):
 
     @property
     def flow_kernel(self) -> np.ndarray:
-        """The model's flow-memory weights (lag 0 first), probed on first use; [1] when switched off."""
-        if not self.settings.flow_memory:
+        """Flow-memory weights (lag 0 first) of a model that is not a window net, probed on first use.
+
+        [1] when switched off and for window nets (their flow history is tabulated instead).
+        """
+        if not self.settings.flow_memory or self.source.kind == "window":
             return np.ones(1)
         if self._flow_kernel is None:
             self._flow_kernel = self.source.flow_kernel()
@@ -260,7 +280,7 @@ class TabulatedLegModel(LegForceModel):
         return self._provider(motion)
 
     def is_batch_motion(self, motion: LegMotion) -> bool:
-        """Is ``motion`` this batch's legs on ticks 0, dt, 2 dt, ... (the simulator's motion)?"""
+        """Whether ``motion`` is this batch's legs on ticks 0, dt, 2 dt, ... (the simulator's motion)."""
         n, t = motion.shape
         if n != 4 * len(self.gaits) or t < 1:
             return False
@@ -291,50 +311,85 @@ class TabulatedLegModel(LegForceModel):
         uf = phase / table.phase_step[s_of_leg, None] * table.rp                        # fine phase position
         m0 = np.floor(uf).astype(np.int64)
         tp = uf - m0
-        kernel = self.flow_kernel
         offs, _ = _kernel(np.zeros(1), self.settings.interpolation)
         n_shapes = len(self.shapes)
-        startup = self._startup(motion, s_of_leg, m0, tp) if self.settings.startup_correction else None
+        head = _Head(self, motion) if self.settings.startup_correction else None
+        if self.source.history_order:
+            filters = self.source.history_filters()                         # level, then history terms
+
+            def levels(flow):
+                coef = [_filter_flow(flow, taps) for taps in filters]
+                return coef[0], coef[1:]
+        else:
+            kernel = self.flow_kernel
+
+            def levels(flow):
+                return _filter_flow(flow, kernel), []
 
         def provider(flow: np.ndarray) -> np.ndarray:
             t_start = time.perf_counter()
             t_model = table.model_time_s
-            flow = _filter_flow(np.asarray(flow, float), kernel)
-            g0 = np.floor(flow / table.step).astype(np.int64)
+            level, terms = levels(np.asarray(flow, float))
+            g0 = np.floor(level / table.step).astype(np.int64)
             # nodes each shape needs: its legs' lowest and highest flows plus the kernel's reach
             lo = np.full(n_shapes, np.iinfo(np.int64).max)
             hi = np.full(n_shapes, np.iinfo(np.int64).min)
             np.minimum.at(lo, s_of_leg, g0.min(axis=1) + offs[0])
             np.maximum.at(hi, s_of_leg, g0.max(axis=1) + offs[-1])
             table.ensure(lo, hi)
-            out = table.read(s_of_leg, m0, tp, flow)
-            if startup is not None:
-                out[:, :startup.shape[1]] += startup
+            read = table.read(s_of_leg, m0, tp, level)
+            out = read[..., :6].copy()
+            for k, a in enumerate(terms):
+                out += a[..., None] * read[..., 6 * (k + 1):6 * (k + 2)]
+            t_head = self.startup_time_s
+            if head is not None:
+                head.apply(flow, out)
+            self.interp_time_s -= self.startup_time_s - t_head
             self.interp_time_s += time.perf_counter() - t_start - (table.model_time_s - t_model)
             return out
 
         return provider
 
-    def _startup(self, motion: LegMotion, s_of_leg, m0, tp) -> np.ndarray:
-        """Direct minus tabulated wrench at rest over the first memory ticks, (4B, M, 6)."""
+
+class _Head:
+    """The first ticks of a tabulated rollout, straight from the model (see ``startup_correction``).
+
+    Within the model's memory of the start a direct rollout sees a padded history (a window net
+    repeats the first tick, a filter starts at rest), which the periodic table cannot know. These
+    few ticks of all legs are predicted directly, at the actual flow, whenever that flow moved
+    more than ``startup_tol_mps`` since the last time; in between, the table's change from then
+    to now is added to the cached prediction.
+    """
+
+    def __init__(self, owner: "TabulatedLegModel", motion: LegMotion):
         from dataclasses import replace
 
-        t0 = time.perf_counter()
-        m = min(motion.shape[1], self.source.memory_ticks)
-        offs, _ = _kernel(np.zeros(1), self.settings.interpolation)
-        n_shapes = len(self.shapes)
-        self.table.ensure(np.full(n_shapes, offs[0]), np.full(n_shapes, offs[-1]))
-        t_model = self.table.model_time_s
-        head = motion.rows(np.arange(motion.shape[0]))
-        head = replace(head, **{k: (None if v is None else v[:, :m]) for k, v in (
-            ("theta_h_deg", head.theta_h_deg), ("theta_k_deg", head.theta_k_deg), ("omega_h_dps", head.omega_h_dps),
-            ("omega_k_dps", head.omega_k_dps), ("alpha_h_dps2", head.alpha_h_dps2),
-            ("alpha_k_dps2", head.alpha_k_dps2))}, flow_speed_mps=np.zeros((motion.shape[0], m)))
-        direct = np.asarray(self.inner.wrench(head), float)
-        self.source.windows += head.shape[0] * m
-        tab = self.table.read(s_of_leg, m0[:, :m], tp[:, :m], np.zeros((motion.shape[0], m)))
-        self.startup_time_s += time.perf_counter() - t0 - (self.table.model_time_s - t_model)
-        return direct - tab
+        self.owner = owner
+        self.m = min(motion.shape[1], owner.source.memory_ticks)
+        self.motion = replace(motion, **{k: getattr(motion, k)[:, :self.m] for k in (
+            "theta_h_deg", "theta_k_deg", "omega_h_dps", "omega_k_dps", "flow_speed_mps")},
+            **{k: (None if getattr(motion, k) is None else getattr(motion, k)[:, :self.m])
+               for k in ("alpha_h_dps2", "alpha_k_dps2")})
+        self.tol = owner.settings.startup_tol_mps
+        self.flow: np.ndarray | None = None
+        self.direct: np.ndarray | None = None
+        self.tab: np.ndarray | None = None
+        self.evaluations = 0
+
+    def apply(self, flow: np.ndarray, out: np.ndarray) -> None:
+        """Replace the first ticks of ``out`` (the tabulated wrench at ``flow``) in place."""
+        from dataclasses import replace
+
+        m = self.m
+        now = flow[:, :m]
+        if self.flow is None or np.abs(now - self.flow).max() > self.tol:
+            t0 = time.perf_counter()
+            self.direct = np.asarray(self.owner.inner.wrench(replace(self.motion, flow_speed_mps=now.copy())), float)
+            self.owner.source.windows += now.size
+            self.owner.startup_time_s += time.perf_counter() - t0
+            self.flow, self.tab = now.copy(), out[:, :m].copy()
+            self.evaluations += 1
+        out[:, :m] = self.direct + (out[:, :m] - self.tab)
 
 
 def _filter_flow(flow: np.ndarray, kernel: np.ndarray) -> np.ndarray:

@@ -255,7 +255,7 @@ def mean_sem(x: np.ndarray, c: float = 5.0) -> float:
 
     tau = 1 + 2 sum_k rho_k, summed up to the smallest lag M >= c tau (Sokal's automatic window);
     SEM = sqrt(var tau / N). Subtracting the sample mean biases every rho_k low, which shortens
-    tau on short records; tau is divided by (1 - 1.5 (M + 1/2) / N), a correction calibrated on
+    tau on short records; tau is divided by max(1 - 1.5 (M + 1/2) / N, 1/2), a correction calibrated on
     first-order (AR(1)) noise to within about 10 % for records longer than ten correlation times
     (tests/hydro/test_drag.py). The force is low-pass filtered and carries slow wake fluctuations,
     so sigma / sqrt(N) would be far too small.
@@ -273,7 +273,7 @@ def mean_sem(x: np.ndarray, c: float = 5.0) -> float:
     taus = 2.0 * np.cumsum(acf / acf[0]) - 1.0
     ok = np.flatnonzero(np.arange(n) >= c * taus)
     m = int(ok[0]) if ok.size else n - 1
-    tau = float(taus[m]) / max(1.0 - 1.5 * (m + 0.5) / n, 0.25)
+    tau = float(taus[m]) / max(1.0 - 1.5 * (m + 0.5) / n, 0.5)
     tau = min(max(tau, 1.0), float(n))
     return float(math.sqrt(acf[0] / n * tau / n))
 
@@ -396,9 +396,10 @@ def doubtful(fit: HeadingFit, params: DragFitParams = DragFitParams()) -> list[s
     lo, hi = fit.speed_range_mps
     crit = fit.t_crit if math.isfinite(fit.t_crit) else 2.0
     if math.isfinite(s0) and s0 > 0 and c0 / s0 > crit:
+        zero = ("the runs were tared, so it is not a load-cell zero offset" if params.tare
+                else "check the load cell's zero (fit.tare)")
         flags.append(f"drag at rest: intercept c0 = {c0:.3f} +- {s0:.3f} N is significantly above zero; a body at "
-                     f"rest feels no drag, so trust the fit only over {lo:.2f}-{hi:.2f} m/s and check the load "
-                     "cell's zero (tare)")
+                     f"rest feels no drag, so trust the fit only over {lo:.2f}-{hi:.2f} m/s; {zero}")
     elif math.isfinite(s0) and s0 > 0 and c0 / s0 < -crit:
         flags.append(f"thrust at rest: intercept c0 = {c0:.3f} +- {s0:.3f} N is significantly below zero")
     if c2 < 0:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import abc
 import importlib
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -42,6 +43,8 @@ _LOADERS: dict[str, str] = {
 }
 #: prefix -> "module:callable(spec)" for parameterised specs (e.g. "models:/name@alias", "file:...")
 _PREFIX_LOADERS: dict[str, str] = {}
+#: "module:callable(path)" tried in turn for a spec that is an existing path; returns None if not its kind
+_PATH_LOADERS: list[str] = []
 
 
 def register_loader(name: str, target: str) -> None:
@@ -50,6 +53,12 @@ def register_loader(name: str, target: str) -> None:
         _PREFIX_LOADERS[name] = target
     else:
         _LOADERS[name] = target
+
+
+def register_path_loader(target: str) -> None:
+    """Register a ``module:callable(path)`` that loads a saved model from a path (None: not its kind)."""
+    if target not in _PATH_LOADERS:
+        _PATH_LOADERS.append(target)
 
 
 def _resolve(target: str) -> Callable:
@@ -65,6 +74,11 @@ def load_leg_model(spec: str, **kwargs) -> LegForceModel:
     for prefix, target in _PREFIX_LOADERS.items():
         if spec.startswith(prefix):
             return _resolve(target)(spec, **kwargs)
+    if _PATH_LOADERS and Path(spec).exists():
+        for target in _PATH_LOADERS:
+            model = _resolve(target)(spec, **kwargs)
+            if model is not None:
+                return model
     known = ", ".join(sorted(_LOADERS)) + (", " + ", ".join(sorted(_PREFIX_LOADERS)) if _PREFIX_LOADERS else "")
     raise ModelError(f"unknown leg force model {spec!r}", hint=f"known: {known}")
 

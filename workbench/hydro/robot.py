@@ -28,7 +28,7 @@ PAPER_LATERAL_DRAG = (15.571, 0.937, 0.055)
 PAPER_SPEED_RANGE_MPS = (0.10, 0.35)
 
 _MIRROR = np.diag([-1.0, 1.0, 1.0])
-BELOW_RANGE_MODES = ("linear_to_zero", "as_fitted")
+BELOW_RANGE_MODES = ("linear_to_zero", "as_fitted", "drop_intercept")
 
 
 def rodrigues(axis, angle_rad: float) -> np.ndarray:
@@ -50,12 +50,14 @@ class DragLaw:
     ``linear_to_zero`` (default) goes linearly from the fit at the lowest towed speed to zero at
     rest, because a body at rest feels no drag and a fitted intercept (the paper's forward 0.334 N)
     is an artefact of fitting 0.1-0.35 m/s; ``as_fitted`` keeps the polynomial down to v = 0
-    (discontinuous at rest: the sign flips with the velocity). The magnitude is never negative.
+    (discontinuous at rest: the sign flips with the velocity); ``drop_intercept`` treats c0 as a
+    towing-tank artefact (``fit-drag`` flags an intercept clearly above zero as "drag at rest") and
+    uses c2 v^2 + c1 v at every speed, continuous through rest. The magnitude is never negative.
     """
 
     coefficients: tuple[float, float, float]
     speed_range_mps: tuple[float, float] = PAPER_SPEED_RANGE_MPS
-    below_range: str = "linear_to_zero"
+    below_range: str = "drop_intercept"
 
     def __post_init__(self):
         if self.below_range not in BELOW_RANGE_MODES:
@@ -71,7 +73,9 @@ class DragLaw:
         """Drag magnitude (N) at a non-negative speed (m/s)."""
         s = np.abs(np.asarray(speed, float))
         mag = self.polynomial(s)
-        if self.below_range == "linear_to_zero":
+        if self.below_range == "drop_intercept":
+            mag = mag - self.coefficients[2]
+        elif self.below_range == "linear_to_zero":
             v0 = self.speed_range_mps[0]
             if v0 > 0:
                 mag = np.where(s < v0, self.polynomial(v0) * s / v0, mag)
@@ -208,7 +212,7 @@ def _per_leg(value: Any, what: str, path) -> list:
     raise ContractError(f"'{what}' needs one entry per leg {LEG_NAMES}", path=path)
 
 
-def read_drag_json(path: str | Path, below_range: str = "linear_to_zero",
+def read_drag_json(path: str | Path, below_range: str = "drop_intercept",
                    default_range: tuple[float, float] = PAPER_SPEED_RANGE_MPS) -> tuple[DragLaw, DragLaw]:
     """Forward and lateral drag laws from a ``drag.json`` (data contract section 4)."""
     p = Path(path)
@@ -264,7 +268,7 @@ def robot_from_dict(doc: Mapping[str, Any], *, drag_json: str | Path | None = No
     for key, cast in (("body_length_m", float), ("strip_stations", int), ("extra_yaw_damping_nms", float)):
         if key in drag:
             kwargs[key] = cast(drag[key])
-    below = str(drag.get("below_range", "linear_to_zero"))
+    below = str(drag.get("below_range", "drop_intercept"))
     if below not in BELOW_RANGE_MODES:
         raise ContractError(f"'body_drag.below_range' must be one of {BELOW_RANGE_MODES}", path=where)
     laws = {}

@@ -331,6 +331,8 @@ class BodyDrag:
 def _law_terms(law) -> tuple[float, float, float, float, float]:
     """(c2, c1, c0, v0, slope below v0) of a DragLaw; v0 = 0 when the polynomial runs down to rest."""
     c2, c1, c0 = law.coefficients
+    if law.below_range == "drop_intercept":
+        c0 = 0.0
     v0 = law.speed_range_mps[0] if law.below_range == "linear_to_zero" and law.speed_range_mps[0] > 0 else 0.0
     slope = float(law.polynomial(v0)) / v0 if v0 > 0 else 0.0
     return c2, c1, c0, v0, slope

@@ -54,10 +54,10 @@ def up_to_date(campaign_dir: str | Path, out: str | Path, params: IngestParams |
 
 def ingest_to_file(campaign_dir: str | Path, out: str | Path, *,
                    params: IngestParams | Mapping[str, Any] | None = None, skip_bad_runs: bool = False,
-                   force: bool = False) -> IngestResult | None:
+                   force: bool = False, progress=None) -> IngestResult | None:
     """Ingest and write atomically; return None (nothing done) when ``out`` is already up to date."""
     if not force and up_to_date(campaign_dir, out, params, skip_bad_runs):
         return None
-    result = ingest_campaign(campaign_dir, params=params, skip_bad_runs=skip_bad_runs)
+    result = ingest_campaign(campaign_dir, params=params, skip_bad_runs=skip_bad_runs, progress=progress)
     write_processed(result, out)
     return result

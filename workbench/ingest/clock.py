@@ -4,8 +4,18 @@ The controller raises the shared trigger line on the tick a run starts and every
 clock after that. Its own log rows are its ticks, so its rising edges are exact. Every other
 device samples the line; the true edge lies between its last low and first high sample, and the
 midpoint of the two is the estimate (error uniform within one sample period). A least-squares
-line ``device = a + b * controller`` through all paired edges averages those errors down, so
-offset and drift come out well under a millisecond from a 500 Hz load cell.
+line ``device = a + b * controller`` through the midpoints of all paired edges averages those
+errors down when the sampling phase varies from edge to edge (jitter, drift).
+
+When it barely varies (a steady controller, a clock drifting by tens of ppm over a short run),
+the midpoints' errors share a sign and the least-squares line can miss by more than half a
+sample at the ends of the run. The bracketing samples hold more than their midpoint, though:
+the true line must pass through every edge's (last low, first high] interval. Among the lines
+that do, ingest takes the one whose values at the first and at the last paired edge sit in the
+middle of their feasible ranges; that bounds the error at both ends, hence everywhere between,
+by half the narrowest feasible range (at most half a sample, usually much less). When no line
+fits every interval (a device clock that jitters), the least-squares line is used; the quality
+report says which (``clock_fit``).
 
 Pairing never correlates signals (that would hide real physical delays). The device's first
 edge is the run's first edge when the device saw the line low for longer than any low stretch
@@ -43,6 +53,8 @@ class ClockFit:
     n_edges: int
     residual_max_s: float
     residual_rms_s: float
+    #: "bounded" (centred in the set of lines through every edge interval) or "least_squares"
+    method: str = "least_squares"
 
     @property
     def offset_s(self) -> float:
@@ -143,8 +155,14 @@ def align_clock(ctrl_t: np.ndarray, ctrl_sync: np.ndarray, dev_t: np.ndarray, de
     if fault:
         raise DataError(fault, path=path, run=run)
     x, y = c[ci], d[di]
+    lo, hi = dev_t[dev_idx[di] - 1], dev_t[dev_idx[di]]
     x0 = x[0]
     b, a0 = np.polyfit(x - x0, y, 1)
+    method = "least_squares"
+    bounded = _bounded_line(x - x0, lo, hi)
+    if bounded is not None:
+        a0, b = bounded
+        method = "bounded"
     a = a0 - b * x0
     resid = y - (a + b * x)
     worst = float(np.max(np.abs(resid)))
@@ -154,4 +172,52 @@ def align_clock(ctrl_t: np.ndarray, ctrl_sync: np.ndarray, dev_t: np.ndarray, de
                         f"{worst * 1e3:.1f} ms (limit {max_residual_ms:g} ms)", path=path, run=run,
                         hint="a clock jump or a misread trigger line")
     return ClockFit(a=float(a), b=float(b), start_s=float(x0), n_edges=len(ci), residual_max_s=worst,
-                    residual_rms_s=float(np.sqrt(np.mean(resid ** 2))))
+                    residual_rms_s=float(np.sqrt(np.mean(resid ** 2))), method=method)
+
+
+#: the bracketing intervals are widened by this much (device time stamps rounded to microseconds)
+_SLACK_S = 2e-6
+_GRID = 65
+
+
+def _feasible(y: np.ndarray, dx: np.ndarray, lo_k: np.ndarray, hi_k: np.ndarray) -> np.ndarray:
+    """Whether each candidate value ``y`` at the anchor edge leaves a slope meeting every other interval."""
+    y = y[:, None]
+    bound_a, bound_b = (lo_k - y) / dx, (hi_k - y) / dx
+    s_lo = np.max(np.where(dx > 0, bound_a, bound_b), axis=1)
+    s_hi = np.min(np.where(dx > 0, bound_b, bound_a), axis=1)
+    return s_lo <= s_hi
+
+
+def _feasible_range(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, m: int) -> tuple[float, float] | None:
+    """Range of values at ``x[m]`` of the lines passing through every interval (lo_k, hi_k] at x_k.
+
+    The feasible values form an interval (the set of lines is convex): found on a coarse grid over
+    the anchor's own interval, then each end refined on a fine grid between its neighbours.
+    """
+    dx = np.delete(x - x[m], m)[None, :]
+    lo_k, hi_k = np.delete(lo, m)[None, :], np.delete(hi, m)[None, :]
+    y = np.linspace(lo[m], hi[m], _GRID)
+    ok = np.flatnonzero(_feasible(y, dx, lo_k, hi_k))
+    if len(ok) == 0:
+        return None
+    ends = []
+    for i, j in ((ok[0], ok[0] - 1), (ok[-1], ok[-1] + 1)):
+        if 0 <= j < len(y):
+            fine = np.linspace(y[j], y[i], _GRID)
+            ends.append(fine[np.argmax(_feasible(fine, dx, lo_k, hi_k))])
+        else:
+            ends.append(y[i])
+    return float(ends[0]), float(ends[1])
+
+
+def _bounded_line(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, float] | None:
+    """Intercept at x = 0 and slope of the line centred in the feasible set, or None if it is empty."""
+    lo, hi = lo - _SLACK_S, hi + _SLACK_S
+    first = _feasible_range(x, lo, hi, 0)
+    last = _feasible_range(x, lo, hi, len(x) - 1)
+    if first is None or last is None:
+        return None
+    y0, y1 = 0.5 * sum(first), 0.5 * sum(last)
+    slope = (y1 - y0) / (x[-1] - x[0])
+    return y0 - slope * x[0], slope

@@ -35,7 +35,7 @@ class IngestParams:
     max_edge_residual_ms: float = 3.0
     #: a reading at or above this fraction of [loadcell] full_scale counts as saturated
     saturation_fraction: float = 0.999
-    #: worker processes over runs (0: automatic, at most 2); does not change the result
+    #: worker threads over runs (0: automatic, at most 2); does not change the result
     workers: int = 0
 
     def __post_init__(self):

@@ -105,7 +105,9 @@ def _json_default(o):
 def write_table(table: pa.Table, path: str | Path) -> None:
     """Write an Arrow table to Parquet atomically (the old file stays until the new one is whole)."""
     with atomic_path(path, suffix=".parquet.tmp") as tmp:
-        pq.write_table(table, tmp, compression="zstd")
+        # dictionary encoding only where it pays (the id columns); constant floats compress anyway
+        strings = [f.name for f in table.schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
+        pq.write_table(table, tmp, compression="zstd", use_dictionary=strings)
 
 
 def write_processed(result, path: str | Path, *, quality: bool = True) -> Path:

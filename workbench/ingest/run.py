@@ -39,12 +39,44 @@ from workbench.signals.filters import (
 
 @dataclass
 class RunOutput:
-    """A processed run: its rows, its quality record and the hashes of the raw files it read."""
+    """A processed run: per-tick columns, per-run constants, its quality record, its raw files' hashes.
+
+    Kept as numpy arrays; :func:`assemble` makes one frame of many runs at once.
+    """
 
     run_id: str
-    frame: pl.DataFrame
+    facility: str
+    columns: dict[str, np.ndarray]
+    constants: dict[str, object]
     quality: dict
     hashes: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def frame(self) -> pl.DataFrame:
+        """This run's rows (contract section 3)."""
+        return assemble([self], self.facility)
+
+
+#: polars types of the per-run constant columns
+_CONSTANT_TYPES = {"campaign_id": pl.String, "run_id": pl.String, "heading": pl.String, "interpolated": pl.Boolean,
+                   "cycles": pl.Int32}
+
+
+def assemble(outputs: list[RunOutput], facility: str) -> pl.DataFrame:
+    """One frame from many runs: per-tick arrays concatenated, constants repeated per tick."""
+    names = columns_for(facility)
+    if not outputs:
+        return pl.DataFrame(schema={c: _CONSTANT_TYPES.get(c, pl.Float64) for c in names})
+    counts = np.array([len(o.columns["time_s"]) for o in outputs])
+    which = np.repeat(np.arange(len(outputs)), counts)
+    cols = {}
+    for c in names:
+        if c in outputs[0].columns:
+            cols[c] = pl.Series(c, np.concatenate([o.columns[c] for o in outputs]))
+        else:
+            per_run = pl.Series(c, [o.constants[c] for o in outputs], dtype=_CONSTANT_TYPES.get(c, pl.Float64))
+            cols[c] = per_run.gather(which)
+    return pl.DataFrame(cols)
 
 
 def angle_source(campaign: Campaign) -> str:
@@ -63,8 +95,8 @@ def process_run(campaign: Campaign, run: RunSpec, params: IngestParams) -> RunOu
     flags: list[str] = []
 
     # load cell: uniform grid on its own clock -> zero-phase low-pass -> controller ticks
+    saturated = _saturation(lc.values, campaign.loadcell.full_scale, params.saturation_fraction)
     raw = lc.column_matrix(WRENCH_CHANNELS)
-    saturated = _saturation(raw, campaign.loadcell.full_scale, params.saturation_fraction)
     if is_uniform(lc.time_s, 0.05):
         grid, w = lc.time_s, raw
         dt = (grid[-1] - grid[0]) / (len(grid) - 1)
@@ -97,24 +129,18 @@ def process_run(campaign: Campaign, run: RunSpec, params: IngestParams) -> RunOu
     ticks = tc[keep]
     wt = resample_linear(grid_c, w, ticks)
     n = len(ticks)
-    data: dict[str, object] = {
-        "campaign_id": [campaign.id] * n,
-        "run_id": [run.id] * n,
-        "time_s": t_rel[keep],
-        "flow_speed_mps": np.full(n, run.flow_speed_mps),
-    }
+    data: dict[str, np.ndarray] = {"time_s": t_rel[keep]}
     for name, x in cols.items():
         data[name] = x[keep]
     for k, c in enumerate(WRENCH_CHANNELS):
         data[c] = wt[:, k]
-    data["interpolated"] = np.zeros(n, dtype=bool)
+    constants: dict[str, object] = {"campaign_id": campaign.id, "run_id": run.id,
+                                    "flow_speed_mps": float(run.flow_speed_mps), "interpolated": False}
     if campaign.is_tunnel:
-        for p in TUNNEL_MOTION_PARAMS:
-            data[p] = np.full(n, float(run.params[p]))
-        data["cycles"] = pl.Series("cycles", [run.cycles] * n, dtype=pl.Int32)
+        constants.update({p: float(run.params[p]) for p in TUNNEL_MOTION_PARAMS})
+        constants["cycles"] = run.cycles
     else:
-        data["heading"] = [run.heading] * n
-    frame = pl.DataFrame({c: data[c] for c in columns_for(campaign.facility)})
+        constants["heading"] = run.heading
 
     duration = float(t_rel[keep][-1])
     if campaign.is_tunnel and run.cycles and run.params.get("frequency_hz"):
@@ -141,6 +167,7 @@ def process_run(campaign: Campaign, run: RunSpec, params: IngestParams) -> RunOu
         "clock_offset_ms": round(fit.offset_s * 1e3, 6),
         "clock_drift_ppm": round(fit.drift * 1e6, 4),
         "edges_paired": fit.n_edges,
+        "clock_fit": fit.method,
         "edge_residual_max_ms": round(fit.residual_max_s * 1e3, 4),
         "saturated": bool(saturated),
         "saturated_samples": saturated,
@@ -150,7 +177,8 @@ def process_run(campaign: Campaign, run: RunSpec, params: IngestParams) -> RunOu
         "flags": flags,
     }
     hashes = {_rel(campaign, s): s.sha256 for s in streams.values()}
-    return RunOutput(run_id=run.id, frame=frame, quality=quality, hashes=hashes)
+    return RunOutput(run_id=run.id, facility=campaign.facility, columns=data, constants=constants,
+                     quality=quality, hashes=hashes)
 
 
 def _rel(campaign: Campaign, s: Stream) -> str:
@@ -168,10 +196,13 @@ def _angles(ctrl: Stream, campaign: Campaign, params: IngestParams) -> tuple[np.
     return ctrl.values["hfe_cmd_deg"], ctrl.values["kfe_cmd_deg"]
 
 
-def _saturation(raw: np.ndarray, full_scale, fraction: float) -> dict[str, int]:
+def _saturation(values: dict[str, np.ndarray], full_scale, fraction: float) -> dict[str, int]:
     """Samples per channel at or beyond ``fraction`` of full scale (flagged, not refused)."""
     if not full_scale:
         return {}
-    limit = fraction * np.asarray(full_scale, float)
-    hits = (np.abs(raw) >= limit).sum(axis=0)
-    return {c: int(h) for c, h in zip(WRENCH_CHANNELS, hits, strict=True) if h}
+    out = {}
+    for c, fs in zip(WRENCH_CHANNELS, full_scale, strict=True):
+        x, limit = values[c], fraction * fs
+        if x.max() >= limit or x.min() <= -limit:
+            out[c] = int((np.abs(x) >= limit).sum())
+    return out

@@ -10,9 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from workbench.contract.campaign import Campaign, RunSpec, check_manifest
 from workbench.errors import WorkbenchError
+from workbench.ingest.campaign import map_runs
 from workbench.ingest.params import IngestParams
 from workbench.ingest.readers import ReadSpec, make_reader
 from workbench.ingest.run import process_run
@@ -43,26 +45,39 @@ class Validation:
         return seen
 
 
-def _run_errors(campaign: Campaign, run: RunSpec, params: IngestParams) -> tuple[list[WorkbenchError], dict | None]:
+def validate_run(campaign: Campaign, run: RunSpec, params: IngestParams,
+                 manifest_ok: bool = True) -> tuple[list[WorkbenchError], dict | None]:
+    """Every violation in one run's files, and its quality record when it ingests cleanly.
+
+    The run is processed in full first (one read); only when that fails is each file checked on
+    its own, so that faults in several files of the run are all reported.
+    """
+    if manifest_ok:
+        try:
+            return [], process_run(campaign, run, params).quality
+        except WorkbenchError as exc:
+            first = exc
+    else:
+        first = None
     spec = ReadSpec.for_run(campaign, run.id)
     errors: list[WorkbenchError] = []
     files = [("mcap", run.mcap)] if run.mcap else [("loadcell", run.loadcell), (spec.controller_role,
                                                                               getattr(run, spec.controller_role))]
     for role, path in files:
+        if path is None:
+            continue  # the manifest check has reported it
         try:
             for s in make_reader(path, role, spec).read().values():
                 check_stream(s, params, run.id)
         except WorkbenchError as exc:
             errors.append(exc)
-    if errors:
-        return errors, None
-    try:
-        return [], process_run(campaign, run, params).quality
-    except WorkbenchError as exc:
-        return [exc], None
+    if not errors and first is not None:
+        errors.append(first)  # the files are fine one by one: a fault between them (clocks, overlap)
+    return errors, None
 
 
-def validate_campaign(campaign_dir: str | Path, params: IngestParams | None = None) -> Validation:
+def validate_campaign(campaign_dir: str | Path, params: IngestParams | None = None,
+                      progress: Callable[[int], None] | None = None) -> Validation:
     """Check the manifest and every run's files; collect all violations and saturation warnings."""
     params = params or IngestParams()
     camp, manifest_errors = check_manifest(campaign_dir)
@@ -70,11 +85,12 @@ def validate_campaign(campaign_dir: str | Path, params: IngestParams | None = No
     if camp is None or any(e.run is None and "schema" in (e.where or "") for e in manifest_errors):
         return result
     bad_in_manifest = {e.run for e in manifest_errors if e.run}
+    good = [r for r in camp.runs if r.id not in bad_in_manifest]
+    checked = dict(zip([r.id for r in good], map_runs(camp, good, params, task=validate_run, progress=progress),
+                       strict=True))
     for run in camp.runs:
-        if run.id in bad_in_manifest:
-            continue
         result.runs_checked += 1
-        errors, quality = _run_errors(camp, run, params)
+        errors, quality = checked.get(run.id) or validate_run(camp, run, params, manifest_ok=False)
         result.errors.extend(errors)
         if quality and quality["saturated"]:
             chans = ", ".join(f"{c} ({n} samples)" for c, n in quality["saturated_samples"].items())

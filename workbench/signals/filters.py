@@ -11,7 +11,6 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy import signal
 
 
 def single_pass_cutoff(cutoff_hz: float, order: int) -> float:
@@ -25,6 +24,8 @@ def single_pass_cutoff(cutoff_hz: float, order: int) -> float:
 
 @lru_cache(maxsize=64)
 def _design(cutoff_hz: float, order: int, fs_hz: float) -> np.ndarray:
+    from scipy import signal  # imported on first use: a second off the start of every command
+
     return signal.butter(order, single_pass_cutoff(cutoff_hz, order), btype="low", fs=fs_hz, output="sos")
 
 
@@ -42,10 +43,13 @@ def lowpass(x: np.ndarray, fs_hz: float, cutoff_hz: float = 6.0, order: int = 4,
     x = np.asarray(x, dtype=float)
     if not can_lowpass(cutoff_hz, order, fs_hz):
         return x.copy()
-    sos = _design(float(cutoff_hz), int(order), float(fs_hz))
+    # the design depends on the rate only through cutoff/fs: a few ppm of clock drift is no new design
+    sos = _design(float(cutoff_hz), int(order), round(float(fs_hz), 3))
     padlen = 3 * (2 * len(sos) + 1)
     if x.shape[axis] <= padlen:
         return x.copy()
+    from scipy import signal
+
     return signal.sosfiltfilt(sos, x, axis=axis)
 
 
@@ -60,6 +64,8 @@ def lowpass_sampled(t: np.ndarray, x: np.ndarray, cutoff_hz: float = 6.0, order:
 
 def frequency_response_db(freqs_hz: np.ndarray, fs_hz: float, cutoff_hz: float = 6.0, order: int = 4) -> np.ndarray:
     """Gain (dB) of the zero-phase filter :func:`lowpass` applies, at ``freqs_hz``."""
+    from scipy import signal
+
     sos = _design(float(cutoff_hz), int(order), float(fs_hz))
     _, h = signal.sosfreqz(sos, worN=np.asarray(freqs_hz, float), fs=fs_hz)
     return 20 * np.log10(np.maximum(np.abs(h) ** 2, 1e-300))
@@ -106,8 +112,38 @@ def derivative(t: np.ndarray, x: np.ndarray, window: int = 7, polyorder: int = 3
         return np.gradient(x, t, axis=0)
     if is_uniform(t):
         dt = (t[-1] - t[0]) / (n - 1)
-        return signal.savgol_filter(x, window, polyorder, deriv=1, delta=dt, axis=0, mode="interp")
+        return _savgol_derivative(x, window, polyorder, dt)
     grid, dt = uniform_grid(t)
-    xg = resample_linear(t, x, grid)
-    dg = signal.savgol_filter(xg, window, polyorder, deriv=1, delta=dt, axis=0, mode="interp")
+    dg = _savgol_derivative(resample_linear(t, x, grid), window, polyorder, dt)
     return resample_linear(grid, dg, t)
+
+
+@lru_cache(maxsize=16)
+def _savgol_operators(window: int, polyorder: int) -> tuple[np.ndarray, np.ndarray]:
+    """Interior kernel and edge matrix (first half-window samples) of the SG first derivative, dt = 1."""
+    from scipy import signal
+
+    kernel = signal.savgol_coeffs(window, polyorder, deriv=1, use="conv")
+    half = window // 2
+    # edges: fit the polynomial to the first `window` samples, differentiate it at samples 0..half-1
+    pos = np.arange(window, dtype=float)
+    vander = np.vander(pos, polyorder + 1, increasing=True)          # (window, p+1)
+    fit = np.linalg.pinv(vander)                                       # coefficients = fit @ x
+    powers = np.arange(1, polyorder + 1)
+    dvander = np.zeros((half, polyorder + 1))
+    dvander[:, 1:] = powers * pos[:half, None] ** (powers - 1)
+    return kernel, dvander @ fit                                       # (half, window)
+
+
+def _savgol_derivative(x: np.ndarray, window: int, polyorder: int, dt: float) -> np.ndarray:
+    """Savitzky-Golay first derivative along axis 0 (scipy's ``mode="interp"``), with cached operators."""
+    kernel, edge = _savgol_operators(window, polyorder)
+    half = window // 2
+    x = np.asarray(x, float)
+    flat = x.reshape(len(x), -1)
+    out = np.empty_like(flat)
+    for j in range(flat.shape[1]):
+        out[half:-half, j] = np.convolve(flat[:, j], kernel, mode="valid")
+    out[:half] = edge @ flat[:window]
+    out[-half:] = -(edge @ flat[::-1][:window])[::-1]
+    return (out / dt).reshape(x.shape)

@@ -133,7 +133,7 @@ def smooth_segments(v: np.ndarray, window: int, order: int) -> np.ndarray:
     if not finite.any():
         return out
     edges = np.flatnonzero(np.diff(np.concatenate([[0], finite.astype(np.int8), [0]])))
-    for a, b in zip(edges[::2], edges[1::2]):
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
         n = b - a
         w = min(_odd(window), n if n % 2 == 1 else n - 1)
         if w > order + 1:

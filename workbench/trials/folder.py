@@ -7,7 +7,7 @@ from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
-from workbench.contract.trials import TrialSpec, TrialsFolder, load_trials
+from workbench.contract.trials import TrialsFolder, TrialSpec, load_trials
 from workbench.errors import WorkbenchError
 from workbench.trials.params import ScoringParams
 from workbench.trials.trial import TrialResult, score_trial

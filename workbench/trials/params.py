@@ -19,6 +19,8 @@ class ScoringParams:
     # --- detection (HSV gates; hue half-width in OpenCV units, 1 unit = 2 degrees)
     hue_halfwidth: int = 14
     sat_min: int = 90
+    #: laxer saturation gate tried only near a confident prediction (markers washed out by glare)
+    sat_min_relaxed: int = 45
     val_min: int = 50
     #: full-frame search (acquisition) runs on a frame shrunk by this factor
     downscale: int = 2
@@ -60,7 +62,7 @@ class ScoringParams:
     # --- outputs
     overlay: bool = True
     #: overlay videos are at most this wide (smaller is cheaper to encode)
-    overlay_width_px: int = 640
+    overlay_width_px: int = 480
     plots: bool = True
     #: the model others are compared against (None: "EF" if present, else the first name)
     baseline: str | None = None

@@ -113,7 +113,7 @@ def plot_boxplots(scores, path: str | Path, baseline: str | None = None) -> Path
     panels = [("straight", "time_s", "straight: time (s)"), ("straight", "mae_x_m", "straight: MAE(X) (m)"),
               ("turn", "time_s", "turn: time (s)"), ("turn", "radius_m", "turn: radius (m)")]
     fig, axes = plt.subplots(1, 4, figsize=(12, 3.8))
-    for ax, (task, name, title) in zip(axes, panels):
+    for ax, (task, name, title) in zip(axes, panels, strict=True):
         data, labels = [], []
         for m in models:
             sub = scores.filter((scores["model"] == m) & (scores["task"] == task))
@@ -122,11 +122,11 @@ def plot_boxplots(scores, path: str | Path, baseline: str | None = None) -> Path
         if any(len(d) for d in data):
             ax.boxplot([d if len(d) else [np.nan] for d in data], widths=0.5, showfliers=False)
         rng = np.random.default_rng(0)
-        for i, (m, d) in enumerate(zip(models, data), start=1):
+        for i, m in enumerate(models, start=1):
             sub = scores.filter((scores["model"] == m) & (scores["task"] == task)).drop_nulls(name)
             xs = i + rng.uniform(-0.12, 0.12, sub.height)
             ax.scatter(xs, sub[name].to_numpy(), color=cols[m], s=18, zorder=3)
-            for xx, yy, sol in zip(xs, sub[name].to_numpy(), sub["solution"].to_list()):
+            for xx, yy, sol in zip(xs, sub[name].to_numpy(), sub["solution"].to_list(), strict=True):
                 ax.annotate(f"{sol}", (xx, yy), fontsize=6, xytext=(3, 2), textcoords="offset points")
         ax.set_xticks(range(1, len(models) + 1))
         ax.set_xticklabels(labels, fontsize=8)

@@ -171,6 +171,8 @@ def score_turn(t: np.ndarray, x: np.ndarray, y: np.ndarray, heading_rad: np.ndar
     # include the interpolated end point so the fit covers exactly [0, time_s]
     xe, ye = _interp_at(t, x, time_s), _interp_at(t, y, time_s)
     cx, cy, r = fit_circle(np.append(x[sel], xe), np.append(y[sel], ye))
+    if r > 1.0:
+        notes.append(f"the path hardly curves (fitted radius {r:.2f} m): the radius is ill-conditioned")
     return TrialScore(task="turn", time_s=float(time_s), completed=completed, radius_m=r,
                       circle_center=(cx, cy), notes=tuple(notes))
 

@@ -27,6 +27,11 @@ class MarkerTracker:
         self.h = np.asarray(h_px2m, float)
         mk = dict(hue_halfwidth=self.p.hue_halfwidth, sat_min=self.p.sat_min, val_min=self.p.val_min)
         self.gates = (ColourGate(head, **mk), ColourGate(tail, **mk))
+        # under glare a marker keeps its hue but loses saturation: a second, laxer gate used only
+        # close to a confident prediction
+        mk["sat_min"] = self.p.sat_min_relaxed
+        self.relaxed = (ColourGate(head, **mk), ColourGate(tail, **mk))
+        self.n_relaxed = 0
         self.last_px: list[np.ndarray | None] = [None, None]
         self.last_m: list[np.ndarray | None] = [None, None]
         self.last_t: list[float] = [np.nan, np.nan]
@@ -65,11 +70,18 @@ class MarkerTracker:
 
     # --- search -----------------------------------------------------------------------------
     def acquire(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """Search the whole (shrunk) frame for the best plausible head/tail pair."""
-        import cv2
-
+        """Search the whole frame for the best plausible head/tail pair: shrunk first, then at full size."""
         self.n_searches += 1
         k = max(1, int(self.p.downscale))
+        for scale in dict.fromkeys((k, 1)):
+            pair = self._search(frame, scale)
+            if pair is not None:
+                return pair
+        return None
+
+    def _search(self, frame: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+        import cv2
+
         small = frame if k == 1 else cv2.resize(frame, (frame.shape[1] // k, frame.shape[0] // k),
                                                 interpolation=cv2.INTER_AREA)
         hsv = cv2.cvtColor(small, cv2.COLOR_BGR2HSV)
@@ -101,7 +113,7 @@ class MarkerTracker:
         scale = 1.0 / np.sqrt(max(self._m2_per_px2(uv), 1e-12))  # px per metre here
         return max(8.0, self.p.roi_margin_m * scale)
 
-    def _roi_blobs(self, frame, centres, which=(0, 1)) -> dict[int, list[Blob]]:
+    def _roi_blobs(self, frame, centres, which=(0, 1), relaxed: bool = False) -> dict[int, list[Blob]]:
         """Blobs of the requested markers in one window covering the given centres."""
         import cv2
 
@@ -115,8 +127,8 @@ class MarkerTracker:
         if x1 - x0 < 2 or y1 - y0 < 2:
             return {i: [] for i in which}
         hsv = cv2.cvtColor(frame[y0:y1, x0:x1], cv2.COLOR_BGR2HSV)
-        return {i: [b for b in find_blobs(hsv, self.gates[i], offset=(x0, y0)) if self._size_ok(b)]
-                for i in which}
+        gates = self.relaxed if relaxed else self.gates
+        return {i: [b for b in find_blobs(hsv, gates[i], offset=(x0, y0)) if self._size_ok(b)] for i in which}
 
     @staticmethod
     def _nearest(blobs: list[Blob], pred: np.ndarray, radius_px: float) -> Blob | None:
@@ -147,6 +159,18 @@ class MarkerTracker:
                     if np.hypot(*(bm - self.last_m[i])) <= gate_m:
                         found[i] = np.array([b.u, b.v])
                         break
+            missing = tuple(i for i in range(2) if found[i] is None)
+            if missing and self.p.sat_min_relaxed < self.p.sat_min:
+                lax = self._roi_blobs(frame, [preds[i] for i in missing], which=missing, relaxed=True)
+                for i in missing:
+                    dt = max(t - self.last_t[i], 1e-3)
+                    tight_m = 0.04 + 0.25 * self.p.max_speed_mps * dt
+                    pm = self._to_m(preds[i])
+                    for b in sorted(lax[i], key=lambda b, p=preds[i]: np.hypot(b.u - p[0], b.v - p[1])):
+                        if np.hypot(*(self._to_m((b.u, b.v)) - pm)) <= tight_m:
+                            found[i] = np.array([b.u, b.v])
+                            self.n_relaxed += 1
+                            break
             if found[0] is not None and found[1] is not None:
                 if not self._spacing_ok(self._to_m(found[0]), self._to_m(found[1])):
                     # drop the one that strays further from its prediction

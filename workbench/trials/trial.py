@@ -151,7 +151,7 @@ def _track(spec: TrialSpec, robot: RobotSpec, info: VideoInfo, h: np.ndarray, p:
             writer.abort()
         raise
     return (np.array(ts), np.array(heads).reshape(-1, 2), np.array(tails).reshape(-1, 2), writer,
-            tracker.n_searches, stopped_early)
+            (tracker.n_searches, tracker.n_relaxed), stopped_early)
 
 
 def score_trial(spec: TrialSpec, robot: RobotSpec, params: ScoringParams | None = None, *,
@@ -191,7 +191,8 @@ def _score_trial(spec: TrialSpec, robot: RobotSpec, p: ScoringParams, overlay_pa
         "frames_decoded": int(ts.size),
         "detected_fraction": float(np.mean(pose.detected)) if ts.size else 0.0,
         "filled_fraction": float(np.mean(pose.filled)) if ts.size else 0.0,
-        "full_frame_searches": int(n_search),
+        "full_frame_searches": int(n_search[0]),
+        "relaxed_detections": int(n_search[1]),
         "stopped_early": bool(stopped_early),
         "seconds": 0.0,
         "overlay": None,
@@ -211,11 +212,18 @@ def _evaluate(spec, robot, p, info, h, ts, heads, tails) -> tuple[TrialScore, Tr
                         hint="check the marker colours in trials.toml and the lighting")
     pose = clean_pose(ts, heads, tails, h, p)
     x0, y0, psi0 = pose.at(spec.start_s)
+    start_notes = []
     if not np.all(np.isfinite([x0, y0, psi0])):
-        seen = pose.t_s[np.isfinite(pose.x_m)]
-        when = f"first seen at {seen[0]:.2f} s" if seen.size else "never tracked"
-        raise DataError(f"markers not found at start_s = {spec.start_s:g} s ({when}), so the trial frame "
-                        "is undefined")
+        # start_s in a gap: take the nearest tracked pose when it is close (the robot starts from rest)
+        seen = np.flatnonzero(np.isfinite(pose.x_m) & np.isfinite(pose.heading_rad))
+        near = seen[np.argmin(np.abs(pose.t_s[seen] - spec.start_s))] if seen.size else None
+        if near is None or abs(pose.t_s[near] - spec.start_s) > p.max_gap_s:
+            when = f"nearest tracked pose at {pose.t_s[near]:.2f} s" if near is not None else "never tracked"
+            raise DataError(f"markers not found at start_s = {spec.start_s:g} s ({when}), so the trial frame "
+                            "is undefined", hint="check the overlay video (glare or an occlusion at the start?)")
+        x0, y0, psi0 = float(pose.x_m[near]), float(pose.y_m[near]), float(pose.heading_rad[near])
+        start_notes.append(f"markers hidden at start_s; start pose taken from the nearest tracked frame "
+                           f"{pose.t_s[near] - spec.start_s:+.2f} s away")
     fitted = start_heading(pose, spec.start_s, p.start_heading_before_s, p.start_heading_after_s)
     if np.isfinite(fitted):
         psi0 = fitted
@@ -240,6 +248,10 @@ def _evaluate(spec, robot, p, info, h, ts, heads, tails) -> tuple[TrialScore, Tr
         raise DataError(f"the video ends {video_until:.2f} s after start_s, before the robot finished and "
                             f"before the {CAP_S:.0f} s cap, so the trial cannot be scored",
                         hint="record until the robot finishes or 60 s after start_s") from None
+    if start_notes:
+        from dataclasses import replace
+
+        score = replace(score, notes=tuple(start_notes) + score.notes)
     return score, frame, pose
 
 

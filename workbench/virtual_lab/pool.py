@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, fields, replace
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -95,6 +97,8 @@ class PoolSettings:
     physics: str = "truth"
     sim_dt_s: float = 1.0 / 65.0
     robot_params: str = "pipelines/robot.yaml"
+    #: trials rendered in parallel (processes)
+    workers: int = 2
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any] | None, *, source: str = "pool params") -> "PoolSettings":
@@ -334,7 +338,6 @@ class _Scene:
         """The empty tank at time ``t`` with its moving caustics."""
         import cv2
 
-        s = self.s
         frame = self.base.copy()
         if self.caustics:
             pos = (t / self.caustic_period_s % 1.0) * len(self.caustics)
@@ -351,8 +354,8 @@ class _Scene:
             v = v0 + amp[1] * math.sin(2 * math.pi * t / per[1] + ph[1])
             _add_sprite(frame, self.sprite, u, v)
 
-    def finish(self, frame: np.ndarray, t: float) -> np.ndarray:
-        """Glare, lighting drift and sensor noise on a composed frame."""
+    def finish(self, frame: np.ndarray, t: float, rng: np.random.Generator) -> np.ndarray:
+        """Glare, lighting drift and sensor noise on a composed frame (``rng`` picks the noise frame)."""
         import cv2
 
         s = self.s
@@ -361,7 +364,7 @@ class _Scene:
             g = 1 + s.lighting_drift * (math.sin(2 * math.pi * t / 23.0 + 0.7) + 0.5 * math.sin(2 * math.pi * t / 7.3))
             frame = cv2.convertScaleAbs(frame, alpha=g)
         if self.noise:
-            frame = cv2.add(frame, self.noise[int(self.rng.integers(len(self.noise)))], dtype=cv2.CV_8U)
+            frame = cv2.add(frame, self.noise[int(rng.integers(len(self.noise)))], dtype=cv2.CV_8U)
         return frame
 
 
@@ -376,6 +379,14 @@ def _add_sprite(frame: np.ndarray, sprite: np.ndarray, u: float, v: float) -> No
         return
     roi = frame[fy0:fy1, fx0:fx1]
     cv2.add(roi, sprite[fy0 - y0:fy1 - y0, fx0 - x0:fx1 - x0], dst=roi)
+
+
+@lru_cache(maxsize=8)
+def _body_shapes(length: float, width: float, spacing: float, diameter: float):
+    """Body, inner deck and marker outlines in the body frame (computed once per robot)."""
+    half = spacing / 2
+    return (_rounded_rect(length, width), _rounded_rect(length * 0.85, width * 0.6),
+            _disc(0, half, diameter), _disc(0, -half, diameter))
 
 
 def _rounded_rect(length: float, width: float, n: int = 6) -> np.ndarray:
@@ -405,7 +416,7 @@ def _draw_robot(frame, s: PoolSettings, cam: TiltedCamera, pose, vel_px, gait_ph
 
     x, y, yaw = pose
     shapes = []
-    body = _rounded_rect(s.body_length_m, s.body_width_m)
+    body, deck, head, tail = _body_shapes(s.body_length_m, s.body_width_m, s.marker_spacing_m, s.marker_diameter_m)
     for k, (hx, hy) in enumerate(((-1, 1), (1, 1), (-1, -1), (1, -1))):
         # paddling legs: a swinging link out of each hip (LF, RF, LH, RH)
         ang = math.radians(35) * math.sin(gait_phase + k * math.pi / 2)
@@ -415,11 +426,10 @@ def _draw_robot(frame, s: PoolSettings, cam: TiltedCamera, pose, vel_px, gait_ph
         leg = np.array([base + nrm, base + d + nrm, base + d - nrm, base - nrm])
         shapes.append((leg, (45, 48, 52)))
     shapes.append((body, (38, 40, 44)))
-    shapes.append((_rounded_rect(s.body_length_m * 0.6, s.body_width_m * 0.55), (60, 62, 66)))
+    shapes.append((deck, (60, 62, 66)))
     if markers:
-        half = s.marker_spacing_m / 2
-        shapes.append((_disc(0, half, s.marker_diameter_m), MARKER_BGR[s.head_marker]))
-        shapes.append((_disc(0, -half, s.marker_diameter_m), MARKER_BGR[s.tail_marker]))
+        shapes.append((head, MARKER_BGR[s.head_marker]))
+        shapes.append((tail, MARKER_BGR[s.tail_marker]))
     px = [(cam.project(_to_tank(poly, x, y, yaw)), col) for poly, col in shapes]
     allp = np.concatenate([p for p, _ in px])
     blur = np.asarray(vel_px, float) * s.exposure_fraction / s.fps if s.motion_blur else np.zeros(2)
@@ -519,7 +529,7 @@ def render_trial(path: str | Path, t_s, x_m, y_m, yaw_rad, camera: TiltedCamera,
 
     s = settings
     rng = np.random.default_rng(seed)
-    scene = scene or _Scene(s, camera, rng)
+    scene = scene or _Scene(s, camera, np.random.default_rng(s.seed + 1))
     start_s = s.start_s if start_s is None else start_s
     t_s, x_m, y_m, yaw = (np.asarray(a, float) for a in (t_s, x_m, y_m, yaw_rad))
     duration_s = float(t_s[-1]) if duration_s is None else duration_s
@@ -545,7 +555,7 @@ def render_trial(path: str | Path, t_s, x_m, y_m, yaw_rad, camera: TiltedCamera,
                 ramp = 0.12
                 strength = min(1.0, max(0.0, min(t - (a - ramp), (b + ramp) - t) / ramp))
                 _draw_occluder(frame, s, camera, (px[i], py[i], pyaw[i]), strength)
-            writer.write(scene.finish(frame, t))
+            writer.write(scene.finish(frame, t, rng))
     finally:
         writer.release()
     return {"video_time_s": tv, "x_m": px, "y_m": py, "yaw_rad": pyaw, "occlusions_s": occ_video}
@@ -588,17 +598,43 @@ def _occlusions_for(trial: PoolTrial, decided_s: float, rng, s: PoolSettings, wa
     return ((float(rng.uniform(lo, hi)), dur),)
 
 
+def _render_job(args) -> dict:
+    tmp, job, s, cam = args
+    return render_trial(Path(tmp) / job["rel"], job["t_s"], job["x_m"], job["y_m"], job["yaw_rad"], cam, s,
+                        duration_s=job["duration_s"], gait_hz=job["gait_hz"], occlusions=job["occlusions"],
+                        markers=job["markers"], seed=job["seed"])
+
+
+def _render_all(tmp: Path, jobs: list[dict], s: PoolSettings, cam: TiltedCamera, scene: "_Scene", workers: int):
+    """Render the trials in order (yielding each truth record), in ``workers`` processes when > 1."""
+    workers = max(1, min(workers, len(jobs), os.cpu_count() or 1))
+    if workers == 1:
+        for job in jobs:
+            yield render_trial(tmp / job["rel"], job["t_s"], job["x_m"], job["y_m"], job["yaw_rad"], cam, s,
+                               scene=scene, duration_s=job["duration_s"], gait_hz=job["gait_hz"],
+                               occlusions=job["occlusions"], markers=job["markers"], seed=job["seed"])
+        return
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+        yield from ex.map(_render_job, [(str(tmp), job, s, cam) for job in jobs])
+
+
 def generate_pool(out_dir: str | Path, trials: Sequence[PoolTrial] | None = None, *,
-                  settings: PoolSettings | None = None, progress: bool = True) -> Path:
+                  settings: PoolSettings | None = None, progress: bool = True, workers: int | None = None) -> Path:
     """Write a trials folder (trials.toml, videos/, truth.json) for the given trajectories.
 
     Without ``trials`` a synthetic set is rendered (see :func:`synthetic_trials`). The folder is
     built beside the target and swapped in at the end, so a failure leaves the old one intact.
+    Trials render in ``workers`` processes (default ``settings.workers``); the bytes do not
+    depend on it.
     """
     from workbench.atomic import atomic_dir
     from workbench.console import progress as progress_bar
 
     s = settings or PoolSettings()
+    workers = s.workers if workers is None else workers
     out = Path(out_dir)
     trials = list(trials) if trials is not None else synthetic_trials(s)
     if not trials:
@@ -613,44 +649,42 @@ def generate_pool(out_dir: str | Path, trials: Sequence[PoolTrial] | None = None
     ref_px = cam.project(np.array(corners))
     n_occ = int(math.ceil(s.occlusion_fraction * len(trials))) if s.occlusion_fraction > 0 else 0
     occluded = set(rng.choice(len(trials), size=min(n_occ, len(trials)), replace=False).tolist()) if n_occ else set()
-    entries, truth_trials = [], {}
+    jobs, entries, truth_trials = [], [], {}
+    for k, tr in enumerate(trials):
+        default = s.straight_start if tr.task == "straight" else s.turn_start
+        start = tr.start or (default[0] + rng.uniform(-1, 1) * s.start_jitter_m,
+                             default[1] + rng.uniform(-1, 1) * s.start_jitter_m,
+                             default[2] + rng.uniform(-1, 1) * s.start_jitter_deg)
+        x, y, yaw, clamped = _tank_trajectory(tr, start, s)
+        sc = true_scores(tr.task, tr.t_s, x, y, yaw)
+        length = min(sc["time_s"] + max(s.post_s, 2.0 / s.fps), float(tr.t_s[-1]))
+        if tr.video_until_s is not None:
+            length = min(length, tr.video_until_s)
+        occ = _occlusions_for(tr, sc["time_s"], rng, s, k in occluded)
+        video = f"videos/{tr.id}.mp4"
+        jobs.append(dict(rel=video, t_s=tr.t_s, x_m=x, y_m=y, yaw_rad=yaw, duration_s=length, gait_hz=tr.gait_hz,
+                         occlusions=occ, markers=bool(tr.markers and s.draw_markers), seed=s.seed * 1000 + k))
+        entries.append({"id": tr.id, "task": tr.task, "model": tr.model, "solution": int(tr.solution),
+                        "video": video, "start_s": float(s.start_s)})
+        truth_trials[tr.id] = {
+            "task": tr.task, "model": tr.model, "solution": int(tr.solution),
+            "start_pose": {"x_m": float(start[0]), "y_m": float(start[1]), "heading_deg": float(start[2])},
+            "scores": sc, "clamped_at_wall": clamped, "markers_drawn": bool(tr.markers and s.draw_markers)}
     with atomic_dir(out) as tmp:
         ctx = progress_bar("rendering pool trials", total=len(trials)) if progress else nullcontext()
-        with ctx as task_bar:
-            for k, tr in enumerate(trials):
-                default = s.straight_start if tr.task == "straight" else s.turn_start
-                start = tr.start or (default[0] + rng.uniform(-1, 1) * s.start_jitter_m,
-                                     default[1] + rng.uniform(-1, 1) * s.start_jitter_m,
-                                     default[2] + rng.uniform(-1, 1) * s.start_jitter_deg)
-                x, y, yaw, clamped = _tank_trajectory(tr, start, s)
-                sc = true_scores(tr.task, tr.t_s, x, y, yaw)
-                decided = sc["time_s"]
-                length = min(decided + s.post_s, float(tr.t_s[-1]))
-                if tr.video_until_s is not None:
-                    length = min(length, tr.video_until_s)
-                occ = _occlusions_for(tr, decided, rng, s, k in occluded)
-                video = f"videos/{tr.id}.mp4"
-                rec = render_trial(tmp / video, tr.t_s, x, y, yaw, cam, s, scene=scene, duration_s=length,
-                                   gait_hz=tr.gait_hz, occlusions=occ, markers=tr.markers and s.draw_markers,
-                                   seed=s.seed * 1000 + k)
-                entries.append({"id": tr.id, "task": tr.task, "model": tr.model, "solution": int(tr.solution),
-                                "video": video, "start_s": float(s.start_s)})
-                truth_trials[tr.id] = {
-                    "task": tr.task, "model": tr.model, "solution": int(tr.solution),
-                    "start_pose": {"x_m": float(start[0]), "y_m": float(start[1]), "heading_deg": float(start[2])},
-                    "scores": sc, "clamped_at_wall": clamped,
+        with ctx as bar:
+            for tid, rec in zip(ids, _render_all(tmp, jobs, s, cam, scene, workers), strict=True):
+                truth_trials[tid].update({
                     "occlusions_video_s": [[float(a), float(b)] for a, b in rec["occlusions_s"]],
-                    "markers_drawn": bool(tr.markers and s.draw_markers),
                     "video_s": float(rec["video_time_s"][-1] + 1 / s.fps),
                     "frames": {"video_time_s": np.round(rec["video_time_s"], 6).tolist(),
                                "x_m": np.round(rec["x_m"], 6).tolist(), "y_m": np.round(rec["y_m"], 6).tolist(),
-                               "yaw_rad": np.round(rec["yaw_rad"], 6).tolist()},
-                }
-                if task_bar:
-                    task_bar.advance(1, tr.id)
+                               "yaw_rad": np.round(rec["yaw_rad"], 6).tolist()}})
+                if bar:
+                    bar.advance(1, tid)
         (tmp / "trials.toml").write_text(manifest_text(s.trials_id, s, ref_px, corners, entries), encoding="utf-8")
         truth = {"note": "virtual pool ground truth; not part of the data contract",
-                 "seed": s.seed, "settings": _jsonable(asdict(s)),
+                 "seed": s.seed, "settings": _jsonable({k: v for k, v in asdict(s).items() if k != "workers"}),
                  "camera": {"h_m2px": cam.h_m2px.tolist(), "k": cam.k.tolist()},
                  "yaw_convention": "counter-clockwise from the robot facing tank +Y; body +y forward",
                  "trials": truth_trials}
@@ -667,8 +701,10 @@ def _jsonable(d):
 
 
 def synthetic_trials(s: PoolSettings | None = None, seed: int | None = None) -> list[PoolTrial]:
-    """A small synthetic set: per model two straight runs (one drifting, one never finishing for EF)
-    and two turns (one never finishing for EF), with paper-like speeds and radii."""
+    """A small synthetic set with paper-like speeds and radii.
+
+    Per model ``best`` straight runs and turns; EF's second solution never finishes either task.
+    """
     s = s or PoolSettings()
     rng = np.random.default_rng(s.seed if seed is None else seed)
     out = []
@@ -716,27 +752,33 @@ def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None
     from workbench.trials.scoring import CAP_S
 
     gaits_dir = Path(gaits_dir)
-    todo, params = [], []
+    # gaits that share the fixed constants (theta_h_max, theta_k_min, phi; the file's "fixed") swim together
+    groups: dict[tuple, list[tuple[str, str, int, dict]]] = {}
     for model in s.models:
         for task in s.tasks:
-            doc = read_gait_file(gaits_dir / f"{task}-{model}.json")
+            path = gaits_dir / f"{task}-{model}.json"
+            doc = read_gait_file(path)
+            fixed = doc.get("fixed") if isinstance(doc.get("fixed"), dict) else {}
+            key = tuple(sorted((k, float(v)) for k, v in fixed.items()
+                               if k in ("theta_h_max_deg", "theta_k_min_deg", "phi_rad")))
             for sol in doc["solutions"][: s.best]:
-                todo.append((model, task, int(sol["rank"])))
-                params.append(sol["params"])
-    try:
-        batch = GaitBatch.from_params(params)
-    except ValueError as exc:
-        raise ContractError(f"bad gait parameters: {exc}", path=gaits_dir) from None
+                groups.setdefault(key, []).append((model, task, int(sol["rank"]), sol["params"]))
     robot_path = Path(s.robot_params)
     robot = load_robot(robot_path) if robot_path.is_file() else RobotParams()
     leg_model = _physics(s.physics)
-    traj = simulate(batch, leg_model, robot, duration_s=CAP_S + s.post_s + 1.0, dt_s=s.sim_dt_s)
-    out = []
-    for i, (model, task, rank) in enumerate(todo):
-        label = s.model_labels.get(model, model.upper())
-        out.append(PoolTrial(f"{model}-{task}-{rank}", task, label, rank, traj.t_s, traj.x_m[i], traj.y_m[i],
-                             traj.yaw_rad[i], gait_hz=float(batch.frequency_hz[i])))
-    return out
+    made: dict[tuple[str, str, int], PoolTrial] = {}
+    for key, todo in groups.items():
+        try:
+            batch = GaitBatch.from_params([p for *_, p in todo], **dict(key))
+        except (ValueError, TypeError) as exc:
+            raise ContractError(f"bad gait parameters: {exc}", path=gaits_dir) from None
+        traj = simulate(batch, leg_model, robot, duration_s=CAP_S + s.post_s + 1.0, dt_s=s.sim_dt_s)
+        for i, (model, task, rank, _) in enumerate(todo):
+            label = s.model_labels.get(model, model.upper())
+            made[(model, task, rank)] = PoolTrial(f"{model}-{task}-{rank}", task, label, rank, traj.t_s, traj.x_m[i],
+                                                  traj.y_m[i], traj.yaw_rad[i], gait_hz=float(batch.frequency_hz[i]))
+    # the order of the gait files (model, task, rank), whatever the grouping
+    return [made[k] for k in sorted(made, key=lambda k: (s.models.index(k[0]), s.tasks.index(k[1]), k[2]))]
 
 
 def _physics(spec: str):

@@ -138,7 +138,8 @@ class ControllerSettings:
     feedback: bool = False
     rest_before_s: float = 1.0
     rest_after_s: float = 0.5
-    feedback_noise_deg: float = 0.1
+    ease_s: float = 0.4
+    feedback_noise_deg: float = 0.05
     feedback_resolution_deg: float = 0.1
 
 

@@ -52,8 +52,8 @@ class RunPlan:
     form: str
 
     @property
-    def duration_s(self) -> float:
-        """Length of the prescribed motion."""
+    def cycles_s(self) -> float:
+        """Length of the prescribed cycles on the controller's eased clock."""
         return self.cycles / self.params["frequency_hz"]
 
 
@@ -86,16 +86,44 @@ def plan_runs(speeds: Sequence[float], grid: Sequence[Mapping[str, float]], cycl
     return plans
 
 
-def prescribed(js: JointSinusoid, t_ctrl: np.ndarray, start_s: float, duration_s: float):
-    """Paper eq. 3 from the run's start, the leg at rest at the start pose before and after.
+def ease_time(tau: np.ndarray, cycles_s: float, ease_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The controller's eased clock ``s(tau)`` for the motion, with ``ds/dtau`` and ``d2s/dtau2``.
+
+    ``s`` runs from 0 to ``cycles_s`` while ``tau`` runs from 0 to ``cycles_s + ease_s``: its rate
+    rises from 0 to 1 over ``ease_s`` (raised cosine), stays 1, and falls back to 0 over the last
+    ``ease_s``. Motion that starts and stops this way has no velocity step; ``ease_s = 0`` is
+    the bare equation 3 with its steps.
+    """
+    tau = np.asarray(tau, float)
+    if ease_s <= 0:
+        inside = (tau >= 0) & (tau <= cycles_s)
+        return np.clip(tau, 0.0, cycles_s), inside.astype(float), np.zeros_like(tau)
+    total = cycles_s + ease_s
+    k = np.pi / ease_s
+    up = np.clip(tau, 0.0, ease_s)
+    down = np.clip(total - tau, 0.0, ease_s)
+    s = np.where(tau <= ease_s, up / 2 - np.sin(k * up) / (2 * k),
+                 np.where(tau >= total - ease_s, cycles_s - (down / 2 - np.sin(k * down) / (2 * k)),
+                          tau - ease_s / 2))
+    rate = np.where(tau <= ease_s, (1 - np.cos(k * up)) / 2,
+                    np.where(tau >= total - ease_s, (1 - np.cos(k * down)) / 2, 1.0))
+    acc = np.where(tau <= ease_s, k / 2 * np.sin(k * up),
+                   np.where(tau >= total - ease_s, -k / 2 * np.sin(k * down), 0.0))
+    outside = (tau <= 0) | (tau >= total)
+    return s, np.where(outside, 0.0, rate), np.where(outside, 0.0, acc)
+
+
+def prescribed(js: JointSinusoid, t_ctrl: np.ndarray, start_s: float, cycles_s: float, ease_s: float = 0.0):
+    """Paper eq. 3 from the run's start on the eased clock, the leg at rest at the start pose before and after.
 
     Returns angles, rates and accelerations as ``(T, 2)`` arrays (HFE, KFE; deg, deg/s, deg/s^2).
     """
-    tau = np.clip(t_ctrl - start_s, 0.0, duration_s)
-    th, tk, wh, wk, ah, ak = js.evaluate(tau)
-    moving = (t_ctrl >= start_s) & (t_ctrl <= start_s + duration_s)
-    z = lambda x: np.where(moving, x, 0.0)  # noqa: E731
-    return (np.stack([th, tk], axis=1), np.stack([z(wh), z(wk)], axis=1), np.stack([z(ah), z(ak)], axis=1))
+    s, ds, dds = ease_time(np.asarray(t_ctrl, float) - start_s, cycles_s, ease_s)
+    th, tk, wh, wk, ah, ak = js.evaluate(s)
+    theta = np.stack([th, tk], axis=1)
+    rate = np.stack([wh, wk], axis=1)
+    acc = np.stack([ah, ak], axis=1)
+    return theta, rate * ds[:, None], acc * (ds**2)[:, None] + rate * dds[:, None]
 
 
 def truth_model(truth: str, physics: Mapping[str, Any], effects: Iterable[Effect]) -> TrueLegModel:
@@ -202,7 +230,8 @@ def _chunks(plans: Sequence[RunPlan], s: TunnelSettings) -> list[list[RunPlan]]:
     """Runs of similar length together, each batch under the sample budget (padding stays small)."""
     rate = s.loadcell.rate_hz
     extra = s.motion.rest_before_s + s.motion.rest_after_s + s.loadcell.start_margin_s[1] + s.loadcell.end_margin_s[1]
-    est = {p.index: int((p.duration_s + extra) * rate) + 2 for p in plans}
+    extra += s.motion.ease_s
+    est = {p.index: int((p.cycles_s + extra) * rate) + 2 for p in plans}
     order = sorted(plans, key=lambda p: (est[p.index], p.index))
     chunks, cur = [], []
     for p in order:
@@ -221,12 +250,13 @@ def _prepare(p: RunPlan, s: TunnelSettings, fx: list[Effect], seed: int, wrap: b
     clock = rig.draw_clock(r, s.clocks)
     t0 = float(r.uniform(*s.clocks.controller_origin_s))
     margins = (float(r.uniform(*s.loadcell.start_margin_s)), float(r.uniform(*s.loadcell.end_margin_s)))
-    log = rig.controller_log(t0, s.motion.rate_hz, s.motion.rest_before_s, p.duration_s, s.motion.rest_after_s)
+    ease = min(s.motion.ease_s, p.cycles_s)
+    log = rig.controller_log(t0, s.motion.rate_hz, s.motion.rest_before_s, p.cycles_s + ease, s.motion.rest_after_s)
     if wrap:  # put the device counter's wrap-around in the middle of the run
-        clock = dataclasses.replace(clock, offset_s=_WRAP_S - clock.scale * (log.start_s + p.duration_s / 2))
+        clock = dataclasses.replace(clock, offset_s=_WRAP_S - clock.scale * (log.start_s + log.duration_s / 2))
     t_daq, t_ctrl = rig.capture_times(log.times_s[0], log.last_s, clock, s.loadcell.rate_hz, margins)
     js = JointSinusoid.from_params(p.params)
-    theta, omega, alpha = prescribed(js, t_ctrl, log.start_s, p.duration_s)
+    theta, omega, alpha = prescribed(js, t_ctrl, log.start_s, p.cycles_s, ease)
     dt = float(np.median(np.diff(t_ctrl)))
     for e in by_stage(fx, "motion"):
         theta, omega, alpha = e.apply_motion(theta, omega, alpha, dt)
@@ -234,7 +264,7 @@ def _prepare(p: RunPlan, s: TunnelSettings, fx: list[Effect], seed: int, wrap: b
     frng = rig.run_rng(seed, p.index, "flow")
     for e in by_stage(fx, "flow"):
         flow = e.apply_flow(flow, t_ctrl, frng)
-    tick_cmd, _, _ = prescribed(js, log.times_s, log.start_s, p.duration_s)
+    tick_cmd, _, _ = prescribed(js, log.times_s, log.start_s, p.cycles_s, ease)
     tick_meas = None
     if s.motion.feedback:
         actual = np.stack([np.interp(log.times_s, t_ctrl, theta[:, j]) for j in range(2)], axis=1)
@@ -307,13 +337,13 @@ def _finish(run: _Run, wrench: np.ndarray, root: Path, s: TunnelSettings, fx: li
         "cycles": p.cycles,
         "controller": {"t0_s": log.t0_s, "rate_hz": log.rate_hz, "n_ticks": log.n_ticks,
                        "start_tick": log.start_tick, "first_edge_s": log.start_s, "end_s": log.end_s,
-                       "edges": len(log.edges_s)},
+                       "edges": len(log.edges_s), "ease_s": log.duration_s - p.cycles_s},
         "daq": {"offset_s": clock.offset_s, "drift_ppm": clock.drift_ppm, "rate_hz": s.loadcell.rate_hz,
                 "first_sample_s": float(run.t_daq[0]), "samples": int(len(run.t_daq)),
                 "first_edge_daq_s": float(clock.to_daq(log.start_s)), "margins_s": list(run.extra["margins_s"])},
         "loadcell": errors.to_json(),
         "flow_rms_mps": float(np.sqrt(np.mean((run.flow - p.flow_speed_mps) ** 2))),
-        "wrench_rms": [float(x) for x in np.sqrt(np.mean(wrench[(t_since >= 0) & (t_since <= p.duration_s)] ** 2,
+        "wrench_rms": [float(x) for x in np.sqrt(np.mean(wrench[(t_since >= 0) & (t_since <= log.duration_s)] ** 2,
                                                          axis=0))],
     })
     return record

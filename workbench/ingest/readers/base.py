@@ -72,7 +72,7 @@ def read_raw(path: Path, run: str) -> tuple[bytes, str]:
         data = path.read_bytes()
     except OSError as exc:
         raise DataError(f"cannot read: {exc.strerror}", path=path, run=run) from exc
-    if not data.strip():
+    if not data or data.isspace():
         raise DataError("empty file", path=path, run=run)
     return data, hashlib.sha256(data).hexdigest()
 

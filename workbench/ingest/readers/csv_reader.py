@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import re
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,8 @@ import polars as pl
 from workbench.errors import ContractError, DataError
 from workbench.ingest.readers.base import ReadSpec, header_fault, read_raw
 from workbench.ingest.streams import Stream, csv_line
+
+_NON_SPACE = re.compile(rb"\S")
 
 
 class CsvReader:
@@ -42,8 +45,7 @@ class CsvReader:
             if self.role == "motion" and any(c.endswith("_meas_deg") for c in found) != self.spec.feedback:
                 hint = "[motion] feedback in campaign.toml says whether motion logs carry measured angles"
             self._fail(ContractError, fault, "header (line 1)", hint)
-        body = b"" if nl < 0 else data[nl + 1:]
-        if not body.strip():
+        if nl < 0 or _NON_SPACE.search(data, nl + 1) is None:  # (no copy of the body)
             self._fail(DataError, "no data rows after the header")
         if not data.endswith(b"\n"):
             last = data[data.rfind(b"\n") + 1:]
@@ -58,9 +60,9 @@ class CsvReader:
         except (pl.exceptions.ComputeError, pl.exceptions.NoDataError, pl.exceptions.ShapeError) as exc:
             self._diagnose(data, expected)
             self._fail(ContractError, f"cannot parse: {str(exc).splitlines()[0]}")
-        if df.null_count().sum_horizontal().item():
-            self._diagnose(data, expected)  # ragged lines raise; plain empty cells count as NaN
         arrays = {c: df.get_column(c).to_numpy() for c in expected}
+        if not all(np.isfinite(a).all() for a in arrays.values()):
+            self._diagnose(data, expected)  # ragged lines raise; empty and NaN cells are checked later
         values = {c: arrays[c] for c in expected if c not in ("time_s", "sync")}
         sync = arrays["sync"]
         return {self.role: Stream(role=self.role, path=self.path, time_s=arrays["time_s"],

@@ -31,6 +31,22 @@ def test_fit_drag_on_a_raw_campaign_recovers_the_planted_drag(raw_towing, tmp_pa
     assert "drag at rest" in capsys.readouterr().err
 
 
+def test_fit_drag_recovers_the_papers_drag_from_a_virtual_lab_campaign(tmp_path):
+    # the virtual towing tank tows with exactly the paper's polynomials, through the whole rig
+    # (clocks, trigger line, load-cell bias, drift and noise, wake fluctuations; CSV, .bin and MCAP runs)
+    from workbench.virtual_lab.towing import generate_towing
+
+    raw = generate_towing(tmp_path / "vl-towing", scale="demo", seed=1, form="mixed")
+    assert main(["fit-drag", str(raw), "--out", str(tmp_path / "drag")]) == 0
+    doc = json.loads((tmp_path / "drag" / "drag.json").read_text())
+    for heading in ("forward", "lateral"):
+        est, se = np.array(doc[heading]["coefficients"]), np.array(doc[heading]["stderr"])
+        assert np.all(np.abs(est - PAPER[heading]) < 3 * se), (heading, est, se)
+        assert np.all(se < [0.5, 0.2, 0.02])
+    assert any(f.startswith("drag at rest") for f in doc["forward"]["flags"])
+    assert not doc["skipped_runs"]
+
+
 def test_fit_drag_on_a_processed_file(tmp_path):
     path = tmp_path / "tow.parquet"
     towing_frame(repeats=1, seed=4).write_parquet(path)

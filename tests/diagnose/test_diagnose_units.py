@@ -1,0 +1,178 @@
+"""Pieces of the diagnosis on their own: split, library, least squares, filters, evidence."""
+
+import numpy as np
+import polars as pl
+import pytest
+
+from workbench.diagnose import lsq
+from workbench.diagnose.data import DataSettings, heldout_mask, prepare
+from workbench.diagnose.effects_fluid import AddedMassError, DragCoefficientError, LinkDrag
+from workbench.diagnose.effects_rig import LoadcellCrosstalk, ServoLag, lag_filter, resonance_filter
+from workbench.diagnose.evidence import EvidenceSettings, RunResidual, peaks
+from workbench.diagnose.flowterms import LegKinematics, first_order_lag
+from workbench.diagnose.library import EffectLibrary, default_library
+from workbench.diagnose.loop import DiagnoseSettings
+from workbench.errors import ContractError, ModelError
+from workbench.hydro.ef import EFParams, EmpiricalFormula
+from workbench.hydro.motion import JointSinusoid, RunMotion
+
+
+def _run(run_id, params, flow):
+    t = np.arange(0, 4, 1 / 65)
+    m = JointSinusoid.from_params(params).motion(t, flow)
+    return RunMotion("c", run_id, flow, params, False, t, m, np.zeros((len(t), 6)))
+
+
+def _params(i):
+    return {"theta_h_min_deg": -10.0 * i, "theta_h_max_deg": -100.0, "theta_k_min_deg": 80.0,
+            "theta_k_max_deg": -20.0 - i, "frequency_hz": 0.3 + 0.05 * (i % 4), "phi_rad": 1.0, "alpha_rad": 0.0}
+
+
+def test_split_keeps_parameter_sets_together_and_survives_remeasuring():
+    runs = [_run(f"r{i}{u}", _params(i), u) for i in range(20) for u in (0.0, 0.1, 0.2)]
+    held = heldout_mask(runs, 0.3)
+    by_set = {}
+    for r, h in zip(runs, held):
+        by_set.setdefault(r.params["theta_h_min_deg"], set()).add(bool(h))
+    assert all(len(v) == 1 for v in by_set.values())          # all speeds of a set on one side
+    assert 0 < held.sum() < len(runs)
+    # re-measured: other run ids, other order, tiny parameter noise -> the same sets held out
+    again = [_run(f"x{k}", {p: v + 1e-6 for p, v in r.params.items()}, r.flow_speed_mps)
+             for k, r in enumerate(reversed(runs))]
+    held2 = heldout_mask(again, 0.3)
+    assert {r.params["theta_h_min_deg"] for r, h in zip(runs, held) if h} == \
+        {round(r.params["theta_h_min_deg"], 3) for r, h in zip(again, held2) if h}
+
+
+def test_library_composes_and_names_its_terms():
+    lib = AddedMassError() + DragCoefficientError() + LinkDrag()
+    assert isinstance(lib, EffectLibrary)
+    assert lib.names() == ["added_mass_error", "drag_coefficient_error", "link_drag"]
+    names = lib.get_feature_names()
+    assert any(n.startswith("added_mass_error.delta_kg") and "a_n" in n for n in names)
+    assert len(default_library()) == 12
+    assert "servo_lag.tau_s (searched)" in " ".join(default_library().get_feature_names())
+    with pytest.raises(ModelError):
+        lib + AddedMassError()
+
+
+def test_drag_column_is_the_efs_own_drag_per_unit_coefficient():
+    t = np.arange(0, 3, 1 / 65)
+    m = JointSinusoid.from_params(_params(2)).motion(t, 0.2)
+    extra = EmpiricalFormula(EFParams(c_r=0.7 + 0.3)).wrench(m) - EmpiricalFormula().wrench(m)
+    assert np.allclose(extra, 0.3 * LegKinematics(m).drag_unit(), atol=1e-12)
+    inertia = EmpiricalFormula(EFParams(m_web_kg=0.06)).wrench(m) - EmpiricalFormula().wrench(m)
+    assert np.allclose(inertia, 0.05 * LegKinematics(m).added_mass_unit(), atol=1e-10)
+
+
+def test_lags_follow_the_continuous_first_order_response():
+    dt, tau, f = 1 / 65, 0.05, 0.6
+    t = np.arange(0, 10, dt)
+    w = 2 * np.pi * f
+    exact = (np.sin(w * t) - w * tau * np.cos(w * t)) / (1 + (w * tau) ** 2)
+    got = lag_filter(np.sin(w * t)[None], tau, dt)[0]
+    assert np.abs(got - exact)[200:].max() < 2e-4
+    got2 = first_order_lag(np.sin(w * t)[None], 1 / tau, dt)[0]
+    assert np.abs(got2 - exact)[200:].max() < 2e-4
+
+
+def test_resonance_filter_has_the_modes_gain_and_phase():
+    dt, fn, z, f = 1 / 65, 4.0, 0.1, 3.0
+    t = np.arange(0, 30, dt)
+    y = resonance_filter(np.sin(2 * np.pi * f * t)[:, None], dt, fn, z, axis=0)[:, 0]
+    h = 1 / (1 - (f / fn) ** 2 + 2j * z * f / fn)
+    ref = np.abs(h) * np.sin(2 * np.pi * f * t + np.angle(h))
+    assert np.abs(y - ref)[len(t) // 2:].max() < 0.02 * np.abs(h)
+
+
+def test_servo_lag_transform_shifts_the_motion_by_its_phase():
+    t = np.arange(0, 8, 1 / 65)
+    m = JointSinusoid(10, -100, 80, -20, 0.5, 1.0).motion(t, 0.1)
+    lagged = ServoLag().transform_motion(m, {"tau_s": 0.04})
+    w = 2 * np.pi * 0.5
+    amp = np.ptp(lagged.theta_h_deg[0, 300:]) / np.ptp(m.theta_h_deg[0, 300:])
+    assert amp == pytest.approx(1 / np.sqrt(1 + (w * 0.04) ** 2), rel=2e-3)
+
+
+def test_weighted_least_squares_with_per_run_columns_matches_a_dense_solve():
+    rng = np.random.default_rng(0)
+    nb, k, m, runs = 40, 3, 2, 8
+    g_list, b_list = [], []
+    xs, ys, run_of = [], [], []
+    theta = np.array([1.0, -2.0, 0.5])
+    loc = rng.normal(size=(runs, m))
+    run = np.repeat(np.arange(runs), nb // runs)
+    for i in range(nb):
+        x = rng.normal(size=(10, k + m))
+        y = x[:, :k] @ theta + x[:, k:] @ loc[run[i]] + 0.01 * rng.normal(size=10)
+        xs.append(x)
+        ys.append(y)
+        run_of.append(run[i])
+    for c in range(6):
+        scale = 1.0 if c == 1 else 0.0   # one channel holds everything
+        g_list.append(np.array([scale * x.T @ x for x in xs]))
+        b_list.append(np.array([scale * x.T @ y for x, y in zip(xs, ys)]))
+    yy = np.zeros((nb, 6))
+    yy[:, 1] = [y @ y for y in ys]
+    gr = lsq.Grams(["a", "b", "c"], [np.arange(k)] * 6, g_list, b_list, yy, np.full(nb, 10), run,
+                   np.zeros(nb, int), np.zeros(nb, bool), ["l1", "l2"])
+    f = lsq.fit(gr, np.ones(6))
+    # dense reference: shared columns + one block of local columns per run
+    big = np.zeros((nb * 10, k + runs * m))
+    for i, x in enumerate(xs):
+        big[i * 10:(i + 1) * 10, :k] = x[:, :k]
+        big[i * 10:(i + 1) * 10, k + run[i] * m:k + (run[i] + 1) * m] = x[:, k:]
+    ref = np.linalg.lstsq(big, np.concatenate(ys), rcond=None)[0]
+    assert np.allclose(f.theta, ref[:k], atol=1e-8)
+    assert np.allclose(f.local[3], ref[k + 3 * m:k + 4 * m], atol=1e-8)
+    assert np.all(np.sqrt(np.diag(f.cov)) < 0.01)
+
+
+def _residual_runs(line_hz=None, n=12, seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        t = np.arange(-1, 10, 1 / 65)
+        e = rng.normal(size=(len(t), 6)) * 0.002
+        if line_hz:
+            e[:, 1] += 0.004 * np.sin(2 * np.pi * line_hz * t + rng.uniform(0, 6))
+        fit = (t > 0.5) & (t < 9.5)
+        z = np.zeros_like(e)
+        out.append(RunResidual(f"r{i}", i, False, 0.1, 0.3 + 0.1 * (i % 4), 1 / 65, t, fit, t < 0, t, t, t, t, e, z))
+    return out
+
+
+def test_a_line_locked_to_nothing_is_found_and_noise_has_none():
+    found = peaks(_residual_runs(line_hz=2.7), EvidenceSettings())
+    assert len(found) == 1 and found[0].frequency_hz == pytest.approx(2.7, abs=0.03)
+    assert found[0].channels == ["fy_n"]
+    assert sum(len(peaks(_residual_runs(seed=s), EvidenceSettings())) for s in range(5)) == 0
+
+
+def test_crosstalk_fits_only_identifiable_entries():
+    rng = np.random.default_rng(1)
+    p = np.zeros((2, 50, 6))
+    p[..., 1] = rng.normal(size=(2, 50))
+    p[..., 2] = rng.normal(size=(2, 50))
+    p[..., 5] = 0.02 * p[..., 1]                       # tz proportional to fy, as in the EF
+    xt = LoadcellCrosstalk().configured(p, np.ones((2, 50), bool))
+    sources = {j for _, j in xt.pairs}
+    assert sources == {1, 2}                            # fx never excited, tz an alias of fy
+    assert "x_fx_tz" in xt.aliases["x_fx_fy"]
+
+
+def test_settings_reject_unknown_keys_and_the_pipeline_file_loads():
+    from workbench.project import load_params
+
+    s = DiagnoseSettings.from_mapping(load_params("pipelines/diagnose.yaml", "diagnose"))
+    assert s.selection.alpha == 0.01
+    with pytest.raises(ContractError):
+        DiagnoseSettings.from_mapping({"selection": {"alpha_typo": 1}})
+    with pytest.raises(ContractError):
+        DiagnoseSettings.from_mapping({"nonsense": 1})
+
+
+def test_a_frame_without_tunnel_columns_is_refused():
+    frame = pl.DataFrame({"run_id": ["a"], "time_s": [0.0]})
+    with pytest.raises(Exception, match="missing column"):
+        prepare(frame, DataSettings())

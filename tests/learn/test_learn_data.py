@@ -1,0 +1,112 @@
+"""Windows, split by parameter set and normalisation: the data side of the FED-LSTM (no torch)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import polars as pl
+import pytest
+
+from learn_synthetic import make_frame
+from workbench.errors import ContractError, DataError
+from workbench.learn.split import ParameterSplit, split_parameter_sets
+from workbench.learn.windows import fit_normalisation, read_table, table_from_frame, window_ends
+
+
+def test_windows_never_cross_runs(frame):
+    table = table_from_frame(frame)
+    runs = np.arange(table.n_runs)
+    for L in (1, 16, 40):
+        ends = window_ends(table, runs, L)
+        run_of_end = np.searchsorted(table.start, ends, side="right") - 1
+        run_of_first = np.searchsorted(table.start, ends - L + 1, side="right") - 1
+        assert np.array_equal(run_of_end, run_of_first)
+        assert len(ends) == int(np.sum(table.length - (L - 1)))  # every full window, once
+        assert len(np.unique(ends)) == len(ends)
+
+
+def test_row_order_does_not_matter_and_interpolated_runs_are_their_own(frame):
+    a = table_from_frame(frame)
+    b = table_from_frame(frame.sample(fraction=1.0, shuffle=True, seed=3))
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.y, b.y)
+    # interpolation that reuses one run id for two synthetic speeds still gives two runs
+    one = frame.filter(pl.col("run_id") == "r0003")
+    twin = one.with_columns(pl.lit(0.17).alias("flow_speed_mps"))
+    t = table_from_frame(pl.concat([one, twin]))
+    assert t.n_runs == 2 and sorted(t.runs["flow_speed_mps"].to_list()) == [0.15, 0.17]
+
+
+def test_time_must_increase_within_a_run(frame):
+    r = frame.filter(pl.col("run_id") == "r0001")
+    with pytest.raises(DataError, match="run r0001.*strictly increasing"):
+        table_from_frame(pl.concat([r, r.head(5)]))
+
+
+def test_bad_files_give_one_line_errors(tmp_path, frame):
+    p = tmp_path / "bad.parquet"
+    frame.drop("theta_k_deg").write_parquet(p)
+    with pytest.raises(ContractError, match=r"bad.parquet: missing columns theta_k_deg"):
+        read_table([p])
+    nan = frame.with_columns(pl.when(pl.col("run_id") == "r0004").then(float("nan")).otherwise(pl.col("fy_n"))
+                             .alias("fy_n"))
+    nan.write_parquet(p)
+    with pytest.raises(DataError, match="run r0004: non-finite"):
+        read_table([p])
+    with pytest.raises(ContractError, match="not found"):
+        read_table([tmp_path / "nope.parquet"])
+
+
+def test_split_is_by_parameter_set_seeded_and_recorded():
+    f = make_frame(theta_h_min=(10.0, -10.0, -30.0, -50.0), theta_k_max=(-20.0, -40.0, -60.0, -80.0),
+                   freqs=(0.3, 0.5, 0.6), speeds=(0.0, 0.2), cycles=1.0, interpolated_speeds=(0.1,))
+    table = table_from_frame(f)
+    sp = split_parameter_sets(table, (0.7, 0.1, 0.2), seed=0)
+    counts = sp.counts()
+    assert sum(counts.values()) == 48 and counts == {"train": 34, "val": 5, "test": 10}
+    # every run of a set (all speeds, measured or interpolated) is in its set's split
+    by_set: dict[tuple, set] = {}
+    for r in range(table.n_runs):
+        key = tuple(table.runs["set_key"][r])
+        by_set.setdefault(key, set()).add(sp.assignment[key])
+    assert all(len(s) == 1 for s in by_set.values())
+    names = {n: set(sp.runs(table, n, measured_only=False).tolist()) for n in ("train", "val", "test")}
+    assert not (names["train"] & names["val"]) and not (names["train"] & names["test"]) and not (names["val"] & names["test"])
+    assert not table.runs["interpolated"].to_numpy()[sp.runs(table, "test", measured_only=True)].any()
+    # seeded: same seed same split whatever the row order, another seed another split
+    again = split_parameter_sets(table_from_frame(f.sample(fraction=1.0, shuffle=True, seed=9)), seed=0)
+    assert again.assignment == sp.assignment
+    assert split_parameter_sets(table, seed=1).assignment != sp.assignment
+    # recorded: the JSON record reads back to the same split and lists the runs
+    rec = json.loads(json.dumps(sp.to_dict(table)))
+    assert ParameterSplit.from_dict(rec).assignment == sp.assignment
+    assert rec["counts"] == counts and all(s["runs"] for s in rec["sets"])
+
+
+def test_pin_test_sends_the_figure_sets_to_test(frame):
+    table = table_from_frame(frame)
+    pins = ({"theta_h_min_deg": 10.0, "theta_k_max_deg": -20.0}, {"theta_h_min_deg": -50.0, "theta_k_max_deg": -60.0})
+    for seed in range(5):
+        sp = split_parameter_sets(table, seed=seed, pin_test=pins)
+        tests = [sp.params[k] for k in sp.sets("test")]
+        for pin in pins:
+            assert any(all(p[k] == v for k, v in pin.items()) for p in tests)
+    with pytest.raises(ContractError, match="unknown parameters"):
+        split_parameter_sets(table, pin_test=({"theta_q": 1.0},))
+
+
+def test_normalisation_is_fitted_on_training_runs_only(frame):
+    table = table_from_frame(frame)
+    sp = split_parameter_sets(table, seed=0)
+    train = sp.runs(table, "train", measured_only=False)
+    norm = fit_normalisation(table, train)
+    rows = np.concatenate([np.arange(table.start[r], table.start[r] + table.length[r]) for r in train])
+    assert np.allclose(norm.y_mean, table.y[rows].astype(float).mean(0), rtol=1e-6, atol=1e-9)
+    assert np.allclose(norm.x_std, table.x[rows].astype(float).std(0), rtol=1e-5)
+    # wild values in validation/test runs do not move it
+    y = table.y.copy()
+    for r in np.setdiff1d(np.arange(table.n_runs), train):
+        y[table.start[r]:table.start[r] + table.length[r]] *= 1000
+    import dataclasses
+
+    assert fit_normalisation(dataclasses.replace(table, y=y), train) == norm

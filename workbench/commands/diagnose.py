@@ -1,0 +1,157 @@
+"""``workbench diagnose``: find what a leg force model lacks, add it, report the error before and after."""
+
+from __future__ import annotations
+
+from workbench.commands._help import add_verb
+
+
+def register(sub) -> None:
+    """Add the ``diagnose`` verb."""
+    p = add_verb(
+        sub, "diagnose", help="close the loop: residual -> effect -> augmented model, error before/after",
+        description="Diagnose a leg force model on a water-tunnel campaign. The residual (measured minus "
+        "predicted) of every channel is examined (spectrum, stroke-locked part, whiteness, cross-correlation "
+        "with inputs and the model's own force, dependence on flow speed, angle, phase, time, zero flow and "
+        "rest); candidate effects from the documented library (docs/diagnose.md: servo_lag, added_mass_error, "
+        "drag_coefficient_error, tunnel_blockage, loadcell_crosstalk, leg_weight_buoyancy, sensor_drift, "
+        "structural_resonance, flow_unsteadiness, circulatory_lag, link_drag, lift) are fitted on training "
+        "runs and claimed only when they beat the noise on held-out runs. Writes OUT/diagnosis.json (data "
+        "contract section 4), OUT/augmented_model.json (load it anywhere as `augmented:OUT`), OUT/report.md "
+        "with figures, and logs the diagnosis to MLflow (experiment 'diagnose'). Settings: "
+        "pipelines/diagnose.yaml.",
+        examples="""\
+  workbench diagnose --campaign datasets/raw/demo-tunnel --model ef --out datasets/diagnosis/demo-tunnel-ef
+  workbench diagnose --processed datasets/processed/demo-tunnel.parquet --model lstm --out /tmp/diag-lstm
+  workbench diagnose --campaign datasets/raw/tunnel-2025-03 --model augmented:datasets/diagnosis/demo-tunnel-ef \\
+      --out /tmp/second-pass                       # diagnose an already augmented model again
+  workbench diagnose --campaign /tmp/vl --model ef --out /tmp/d --effects servo_lag,sensor_drift --no-mlflow
+  workbench virtual-lab tunnel /tmp/vl --truth ef --effect servo_lag:tau_s=0.04 && \\
+      workbench diagnose --campaign /tmp/vl --model ef --out /tmp/vl-diag   # does it find the planted lag?
+""")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--campaign", metavar="DIR", help="water-tunnel campaign folder (ingested on the fly)")
+    src.add_argument("--processed", metavar="FILE", help="processed Parquet file of a tunnel campaign")
+    p.add_argument("--model", default="ef", metavar="MODEL",
+                   help="leg force model: ef, lstm, models:/NAME@ALIAS, augmented:DIR or a saved augmented "
+                   "model's path (default: ef)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (replaced atomically on success)")
+    p.add_argument("--params", default="pipelines/diagnose.yaml", metavar="YAML",
+                   help="parameter file with a 'diagnose' section (default: pipelines/diagnose.yaml; built-in "
+                   "defaults when absent)")
+    p.add_argument("--ingest-params", default="pipelines/ingest.yaml", metavar="YAML",
+                   help="ingest settings for --campaign (section 'ingest'; built-in defaults when absent)")
+    p.add_argument("--effects", metavar="LIST", help="comma-separated candidate effects (default: the whole library)")
+    p.add_argument("--max-runs", type=int, metavar="N", help="analyse at most N runs (whole parameter sets)")
+    p.add_argument("--skip-bad-runs", action="store_true", help="ingest the good runs of a campaign with bad ones")
+    p.add_argument("--tracking-uri", metavar="URI", help="MLflow tracking URI (default: the project's store)")
+    p.add_argument("--no-mlflow", action="store_true", help="do not log to MLflow")
+    p.add_argument("--no-figures", action="store_true", help="write report.md without PNG figures")
+    p.set_defaults(func=run)
+
+
+def _section(path: str, default_path: str, section: str) -> dict | None:
+    """A parameter-file section; None when the default file is absent (built-in defaults apply)."""
+    from pathlib import Path
+
+    from workbench.project import load_params, project_root
+
+    if path == default_path and not Path(path).is_file() and not (project_root() / path).is_file():
+        return None
+    doc = load_params(path)
+    return (doc or {}).get(section) or {}
+
+
+def _frame(args):
+    """The processed frame, the ingest's low-pass (cutoff, order) and a source label."""
+    from pathlib import Path
+
+    from workbench.errors import ContractError
+
+    if args.processed:
+        from workbench.ingest import read_processed, read_provenance
+
+        frame = read_processed(args.processed)
+        try:
+            params = read_provenance(args.processed).get("params", {})
+        except ContractError:
+            params = {}
+        return frame, (params.get("lowpass_cutoff_hz"), params.get("lowpass_order")), str(args.processed)
+    from workbench.contract.campaign import load_campaign
+    from workbench.ingest import ingest_campaign
+
+    campaign = load_campaign(args.campaign)
+    if campaign.facility != "water_tunnel":
+        raise ContractError(f"diagnose needs a water-tunnel campaign, this one is {campaign.facility!r}",
+                            path=campaign.manifest)
+    result = ingest_campaign(Path(args.campaign), params=_section(args.ingest_params, "pipelines/ingest.yaml",
+                                                                   "ingest"),
+                             skip_bad_runs=args.skip_bad_runs)
+    rp = result.params
+    return result.frame, (rp.lowpass_cutoff_hz, rp.lowpass_order), str(args.campaign)
+
+
+def _readable(folder) -> None:
+    """Open the output up to the usual umask permissions (the atomic temp folder is private)."""
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    for root, dirs, files in os.walk(folder):
+        os.chmod(root, 0o777 & ~mask)
+        for f in files:
+            os.chmod(os.path.join(root, f), 0o666 & ~mask)
+
+
+def run(args) -> int:
+    """Diagnose, then write diagnosis.json, augmented_model.json and the report into OUT atomically."""
+    import dataclasses
+    import time
+    from pathlib import Path
+
+    from workbench.atomic import atomic_dir, write_json
+    from workbench.console import info
+    from workbench.diagnose.chain import Lowpass
+    from workbench.diagnose.loop import DiagnoseSettings, diagnose
+    from workbench.errors import ContractError
+    from workbench.hydro.legmodel import load_leg_model
+
+    t0 = time.perf_counter()
+    try:
+        settings = DiagnoseSettings.from_mapping(_section(args.params, "pipelines/diagnose.yaml", "diagnose"))
+    except TypeError as exc:
+        raise ContractError(f"bad diagnose parameter: {exc}", path=args.params) from None
+    if args.effects:
+        settings = dataclasses.replace(settings, library=dataclasses.replace(
+            settings.library, effects=tuple(e.strip() for e in args.effects.split(",") if e.strip())))
+    if args.max_runs is not None:
+        settings = dataclasses.replace(settings, data=dataclasses.replace(settings.data, max_runs=args.max_runs))
+    frame, (cutoff, order), source = _frame(args)
+    lowpass = None
+    if settings.match_lowpass:
+        lowpass = Lowpass(float(settings.lowpass_cutoff_hz or cutoff or 6.0), int(settings.lowpass_order or order or 4))
+    model = load_leg_model(args.model)
+    info(f"diagnose {args.model} on {source}")
+    d = diagnose(frame, model, args.model, settings=settings, lowpass=lowpass, source=source,
+                 progress=lambda msg: info(f"  {msg}"))
+    doc = d.to_json()
+    doc["source"] = source
+    out = Path(args.out)
+    from workbench.diagnose.report import write_report
+
+    with atomic_dir(out) as tmp:
+        write_json(tmp / "diagnosis.json", doc)
+        d.augmented.save(tmp / "augmented_model.json")
+        write_report(d, tmp, figures=not args.no_figures)
+        _readable(tmp)
+    for e in d.effects:
+        params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items() if isinstance(v, float))
+        info(f"  effect {e.name}: {params} (held-out error -{e.heldout_mse_reduction:.0%})")
+    for u in d.unexplained:
+        f = f" at {u.frequency_hz:.2f} Hz" if u.frequency_hz is not None else ""
+        info(f"  unexplained {u.kind}{f} in {', '.join(u.channels)}")
+    if not args.no_mlflow:
+        from workbench.diagnose.tracking import log_diagnosis
+
+        log_diagnosis(d, out, args.tracking_uri)
+    info(f"wrote {out}/diagnosis.json, augmented_model.json, report.md ({time.perf_counter() - t0:.1f} s)")
+    return 0

@@ -1,0 +1,468 @@
+"""Close the loop: residual -> evidence -> effects -> augmented model -> error before and after.
+
+:func:`diagnose` is the one domain function behind ``workbench diagnose``: it takes a processed
+tunnel frame and a leg force model, and returns a :class:`Diagnosis` (what ``diagnosis.json``,
+the report and the augmented model are written from). No files are touched here.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from workbench.contract.columns import WRENCH_CHANNELS
+from workbench.diagnose import evidence as ev_mod
+from workbench.diagnose import lsq
+from workbench.diagnose.augmented import AugmentedLegModel
+from workbench.diagnose.chain import Active, Configuration, Design, Lowpass
+from workbench.diagnose.data import DataSettings, prepare
+from workbench.diagnose.evidence import Evidence, EvidenceSettings, analyse
+from workbench.diagnose.library import EffectLibrary, default_library
+from workbench.diagnose.problem import FitSettings, Problem, flow_gains, run_residuals
+from workbench.diagnose.selection import SelectionSettings, StepwiseSelection, judge
+from workbench.errors import ContractError
+
+CHANNELS = list(WRENCH_CHANNELS)
+
+
+@dataclass(frozen=True)
+class LibrarySettings:
+    """Which effects are candidates and their fixed options (section ``library``)."""
+
+    #: effect names (empty: the whole documented library)
+    effects: tuple[str, ...] = ()
+    #: lateral offset of thigh and calf from the hip axis (m) and Gauss points per link
+    link_x_m: float = 0.01
+    link_quadrature: int = 4
+    #: drag coefficient of the force that passes the circulatory lag (null: the EF's own C_R)
+    circulatory_c_r: float | None = None
+
+
+@dataclass(frozen=True)
+class ReportSettings:
+    """What counts as unexplained, and report details (section ``report``)."""
+
+    #: a gait-locked misfit is reported when, beyond noise, it holds at least this share of a channel's residual
+    locked_min_share: float = 0.2
+    #: a channel's effect contribution is listed when it removes at least this share of its error
+    channel_min_gain: float = 0.02
+    example_runs: int = 3
+
+
+@dataclass(frozen=True)
+class DiagnoseSettings:
+    """Every knob of the diagnosis (``pipelines/diagnose.yaml``)."""
+
+    data: DataSettings = field(default_factory=DataSettings)
+    fit: FitSettings = field(default_factory=FitSettings)
+    selection: SelectionSettings = field(default_factory=SelectionSettings)
+    evidence: EvidenceSettings = field(default_factory=EvidenceSettings)
+    library: LibrarySettings = field(default_factory=LibrarySettings)
+    report: ReportSettings = field(default_factory=ReportSettings)
+    #: match the ingest's zero-phase low-pass on the predictions (null: from the processed file)
+    lowpass_cutoff_hz: float | None = None
+    lowpass_order: int | None = None
+    match_lowpass: bool = True
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any] | None) -> "DiagnoseSettings":
+        """Build from the YAML section; unknown keys are an error (a typo would be silent)."""
+        values = dict(values or {})
+        sections = {"data": DataSettings, "fit": FitSettings, "selection": SelectionSettings,
+                    "evidence": EvidenceSettings, "library": LibrarySettings, "report": ReportSettings}
+        known = set(sections) | {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ContractError(f"unknown diagnose parameter(s) {unknown}", where="diagnose parameters")
+        kw: dict[str, Any] = {}
+        for name, typ in sections.items():
+            sec = dict(values.get(name) or {})
+            names = {f.name for f in fields(typ)}
+            bad = sorted(set(sec) - names)
+            if bad:
+                raise ContractError(f"unknown {name} parameter(s) {bad}", where="diagnose parameters",
+                                    hint=f"known: {sorted(names)}")
+            if name == "library" and "effects" in sec:
+                sec["effects"] = tuple(sec["effects"] or ())
+            kw[name] = typ(**sec)
+        for k in ("lowpass_cutoff_hz", "lowpass_order", "match_lowpass"):
+            if k in values:
+                kw[k] = values[k]
+        return cls(**kw)
+
+
+@dataclass
+class EffectReport:
+    """A claimed effect: canonical parameters with intervals, evidence and held-out error reduction."""
+
+    name: str
+    channels: list[str]
+    params: dict[str, float]
+    stderr: dict[str, float]
+    evidence: str
+    heldout_mse_reduction: float
+    heldout_mse_reduction_by_channel: dict[str, float]
+    test: dict
+    alternatives: list[str]
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        """Contract entry plus intervals and test statistics."""
+        ci = {k: [_num(self.params[k] - 1.96 * v), _num(self.params[k] + 1.96 * v)]
+              for k, v in self.stderr.items() if k in self.params and _isnum(self.params[k]) and np.isfinite(v)}
+        return {"name": self.name, "channels": self.channels,
+                "params": {k: _num(v) for k, v in self.params.items()},
+                "evidence": self.evidence, "heldout_mse_reduction": _num(self.heldout_mse_reduction),
+                "stderr": {k: _num(v) for k, v in self.stderr.items()}, "ci95": ci,
+                "heldout_mse_reduction_by_channel": {k: _num(v) for k, v in
+                                                     self.heldout_mse_reduction_by_channel.items()},
+                "test": {k: _num(v) for k, v in self.test.items()}, "alternatives": self.alternatives,
+                "notes": self.notes}
+
+
+@dataclass
+class Unexplained:
+    """Residual structure no library effect explains."""
+
+    kind: str
+    channels: list[str]
+    evidence: str
+    frequency_hz: float | None = None
+
+    def to_json(self) -> dict:
+        """Contract entry."""
+        out = {"kind": self.kind, "channels": self.channels}
+        if self.frequency_hz is not None:
+            out["frequency_hz"] = _num(self.frequency_hz)
+        out["evidence"] = self.evidence
+        return out
+
+
+@dataclass
+class Diagnosis:
+    """The outcome of one diagnosis (domain object; the CLI writes it out)."""
+
+    model: str
+    campaign_id: str
+    mse_before: dict[str, float]
+    mse_after: dict[str, float]
+    effects: list[EffectReport]
+    unexplained: list[Unexplained]
+    augmented: AugmentedLegModel
+    evidence_before: Evidence
+    evidence_after: Evidence
+    residuals_before: list
+    residuals_after: list
+    steps: list
+    final_table: list[dict]
+    heldout_runs: list[str]
+    train_runs: list[str]
+    settings: DiagnoseSettings
+    runtime_s: float = 0.0
+    profiles: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """``diagnosis.json`` (data contract section 4) with extra keys."""
+        rel = {c: _num(1 - self.mse_after[c] / self.mse_before[c]) if self.mse_before[c] > 0 else 0.0
+               for c in CHANNELS}
+        return {
+            "model": self.model,
+            "channels": CHANNELS,
+            "mse_before": {c: _num(self.mse_before[c]) for c in CHANNELS},
+            "mse_after": {c: _num(self.mse_after[c]) for c in CHANNELS},
+            "effects": [e.to_json() for e in self.effects],
+            "unexplained": [u.to_json() for u in self.unexplained],
+            "campaign": self.campaign_id,
+            "heldout_runs": self.heldout_runs,
+            "n_train_runs": len(self.train_runs),
+            "mse_relative_reduction": rel,
+            "evidence_before": self.evidence_before.summary(),
+            "evidence_after": self.evidence_after.summary(),
+            "selection": [{"step": i + 1, "candidates": s.table} for i, s in enumerate(self.steps)]
+            + [{"step": len(self.steps) + 1, "candidates": self.final_table, "stopped": True}],
+            "runtime_s": round(self.runtime_s, 2),
+        }
+
+
+def _isnum(v) -> bool:
+    return isinstance(v, (int, float, np.floating)) and not isinstance(v, bool)
+
+
+def _num(v):
+    if v is None or not _isnum(v):
+        return v
+    v = float(v)
+    return float(f"{v:.6g}") if np.isfinite(v) else None
+
+
+# --------------------------------------------------------------------------- helpers
+def _heldout_mse(runs) -> dict[str, float]:
+    e = np.concatenate([r.resid[r.fit] for r in runs if r.heldout])
+    return {c: float((e[:, i] ** 2).mean()) for i, c in enumerate(CHANNELS)}
+
+
+def _nl_stderr(problem: Problem, config: Configuration, fit: lsq.Fit, names: list[str]) -> dict[str, float]:
+    """Standard errors of nonlinear parameters: Gauss-Newton columns d(prediction)/d(param) in the sandwich fit."""
+    out: dict[str, float] = {}
+    coefs = fit.coefs()
+    for a in config.actives:
+        for p, v in a.nl.items():
+            h = max(abs(v) * 0.02, 1e-4)
+            parts = []
+            for rs, blocks in problem.sets("all"):
+                preds = []
+                for sign in (1, -1):
+                    cfg = config.with_effect(Active(a.effect, {**a.nl, p: v + sign * h}))
+                    d = problem.design(rs, cfg, coefs, names)
+                    preds.append(d.predict(coefs, _local_rows(fit, d, rs)))
+                d0 = problem.design(rs, config, coefs, names)
+                jac = (preds[0] - preds[1]) / (2 * h)
+                dj = Design(d0.base, d0.names + ["__jac__"], d0.cols + [jac], d0.support + [np.ones(6, bool)],
+                            d0.local_names, d0.local)
+                parts.append(lsq.accumulate(dj, rs, blocks, names + ["__jac__"]))
+            gr = lsq.concat(parts)
+            # the Jacobian's coefficient is the parameter's Gauss-Newton correction; its sandwich
+            # error, with the linear terms refitted beside it, is the parameter's profiled error
+            f = lsq.fit(gr, problem.weights, problem.settings.hac_lags)
+            out[f"{a.name}.{p}"] = float(np.sqrt(max(f.cov[-1, -1], 0.0)))
+    return out
+
+
+def _local_rows(fit: lsq.Fit, d: Design, rs) -> dict[str, np.ndarray] | None:
+    if not d.local_names or not fit.local:
+        return None
+    m = len(d.local_names)
+    vals = np.array([fit.local.get(int(i), np.zeros(m)) for i in rs.index])
+    return {n: vals[:, j] for j, n in enumerate(d.local_names)}
+
+
+def _local_table(fit: lsq.Fit, grams: lsq.Grams, campaign) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per-run values and information of the local columns, by local name."""
+    if not grams.local_names or not fit.local:
+        return {}
+    runs = sorted(fit.local)
+    out = {}
+    for j, n in enumerate(grams.local_names):
+        vals = np.array([fit.local[r][j] for r in runs])
+        info = np.array([fit.local_info[r][j] for r in runs])
+        flows = np.array([campaign.runs[r].flow_speed_mps for r in runs])
+        info = np.where(flows > 0, info, 0.0)
+        out[n.split(".", 1)[1]] = (vals, info)
+    return out
+
+
+HINTS: dict[str, Callable[[Evidence], str]] = {}
+
+
+def _ccf_hint(ev: Evidence, key: str, what: str) -> str:
+    c = ev.ccf.get(key)
+    if not c:
+        return ""
+    i = int(np.argmax(c["max_ratio"]))
+    return f"the residual correlates with {what} ({CHANNELS[i]}: {c['max_ratio'][i]:.1f}x its Bartlett bound)"
+
+
+def _hint(name: str, ev: Evidence, eff_params: dict) -> str:
+    """The piece of residual evidence that points at an effect (one clause)."""
+    if name in ("servo_lag", "circulatory_lag"):
+        return _ccf_hint(ev, "model_force_rate", "the rate of the model's force")
+    if name == "structural_resonance":
+        return _ccf_hint(ev, "model_force_accel", "the second derivative of the model's force")
+    if name in ("added_mass_error",):
+        return _ccf_hint(ev, "model_force_accel", "the model's force derivatives")
+    if name == "sensor_drift":
+        c = max(CHANNELS, key=lambda k: abs(ev.trend[k]["t"]))
+        return f"the residual trends with time in the run ({c}: {ev.trend[c]['slope']:.3g}/s, t = {ev.trend[c]['t']:.1f})"
+    if name == "flow_unsteadiness":
+        return f"a tone at {eff_params.get('tone_hz', float('nan')):.2f} Hz rides on the flow sensitivity of the force"
+    if name == "loadcell_crosstalk":
+        return _ccf_hint(ev, "model_force", "the model's force in another channel")
+    if name == "leg_weight_buoyancy":
+        return f"fz is offset at every pose (residual fz mean {np.nanmean(ev.by_angle['mean'][:, 2]):.3g} N)"
+    if name == "tunnel_blockage":
+        worst = max(ev.by_flow, key=lambda k: float(k)) if ev.by_flow else None
+        return f"the misfit grows with flow speed (fy MSE {ev.by_flow[worst]['fy_n']:.3g} at {worst} m/s)" if worst else ""
+    locked = max(CHANNELS, key=lambda k: ev.locked_share[k])
+    return f"{ev.locked_share[locked]:.0%} of the {locked} residual repeats every stroke"
+
+
+# ------------------------------------------------------------------------------ loop
+def diagnose(frame, model, model_spec: str = "model", settings: DiagnoseSettings | None = None,
+             library: EffectLibrary | None = None, selection: StepwiseSelection | None = None,
+             lowpass: Lowpass | None = None, progress: Callable[[str], None] | None = None,
+             source: str = "processed frame") -> Diagnosis:
+    """Diagnose ``model`` on a processed tunnel frame (contract section 3)."""
+    t_start = time.perf_counter()
+    s = settings or DiagnoseSettings()
+    say = progress or (lambda msg: None)
+    campaign = prepare(frame, s.data, source)
+    if lowpass is None and s.match_lowpass:
+        lowpass = Lowpass(s.lowpass_cutoff_hz or 6.0, s.lowpass_order or 4)
+    cutoff = lowpass.cutoff_hz if lowpass else s.evidence.fmax_hz
+    if library is None:
+        c_r = s.library.circulatory_c_r
+        if c_r is None:
+            c_r = float(getattr(getattr(model, "params", None), "c_r", 0.7))
+        library = default_library(list(s.library.effects) or None, s.library.link_x_m, s.library.link_quadrature, c_r)
+    selection = selection or StepwiseSelection(s.selection)
+    say(f"{len(campaign.runs)} runs ({int(campaign.heldout.sum())} held out); fitting the model's residual")
+    problem = Problem(campaign, model, lowpass, s.fit)
+    base_fit = problem.fit(Configuration(), names=[])
+    res_before = run_residuals(problem, Configuration(), base_fit)
+    ev_before = analyse(res_before, s.evidence, cutoff, model_force=[r.predicted for r in res_before])
+    cache: dict[int, list] = {}
+
+    def residuals_of(config: Configuration, fit: lsq.Fit) -> list:
+        key = id(fit)
+        if key not in cache:
+            cache.clear()
+            cache[key] = run_residuals(problem, config, fit)
+        return cache[key]
+
+    def peaks_of(config: Configuration, fit: lsq.Fit):
+        rr = res_before if not config.actives else residuals_of(config, fit)
+        plain = ev_before.peaks if not config.actives else ev_mod.peaks(rr, s.evidence, cutoff)
+        carried = ev_mod.flow_tone_peaks(rr, flow_gains(problem, config), problem.weights, s.evidence, cutoff)
+        out = list(carried)
+        for p in plain:
+            if all(abs(p.frequency_hz - q.frequency_hz) > 0.1 for q in out):
+                out.append(p)
+        return out
+
+    def plausible(cand, config: Configuration, fit: lsq.Fit):
+        if cand.effect.name != "flow_unsteadiness":
+            return True, ""
+        f0 = cand.active.nl["tone_hz"]
+        rr = res_before if not config.actives else residuals_of(config, fit)
+        zero = [r for r in rr if abs(r.flow) < 1e-9]
+        if len(zero) >= 2:
+            zp = ev_mod.peaks(zero, s.evidence, cutoff)
+            hit = [p for p in zp if abs(p.frequency_hz - f0) < 0.1]
+            if hit:
+                return False, (f"the {f0:.2f} Hz line is there at zero flow too ({', '.join(hit[0].channels)}): "
+                               "not carried by the flow")
+        after = run_residuals(problem, cand.config, cand.fit)
+        left = [p for p in ev_mod.peaks(after, s.evidence, cutoff) if abs(p.frequency_hz - f0) < 0.1]
+        if left:
+            return False, f"a flow-borne tone leaves the {f0:.2f} Hz line in {', '.join(left[0].channels)}"
+        return True, ""
+
+    say("selecting effects (held-out runs judge each candidate)")
+    result = selection.select(problem, library, peaks_of=peaks_of, plausible=plausible, progress=None)
+    final = result.fit
+    config = result.config
+    res_after = run_residuals(problem, config, final)
+    ev_after = analyse(res_after, s.evidence, cutoff, model_force=[r.predicted for r in res_after])
+    say(f"{len(config.actives)} effect(s) claimed; errors and intervals")
+    mse_before = _heldout_mse(res_before)
+    mse_after = _heldout_mse(res_after)
+    effects = _effect_reports(problem, result, base_fit, mse_before, ev_before, s)
+    unexplained = _unexplained(ev_after, effects, s)
+    coefs = final.coefs()
+    local: dict[str, dict[str, float]] = {}
+    for j, n in enumerate(final.grams.local_names):
+        local[n] = {campaign.runs[r].run_id: float(v[j]) for r, v in final.local.items()}
+    augmented = AugmentedLegModel(model, model_spec, config.copy(), coefs, lowpass, local,
+                                  name=f"{getattr(model, 'name', 'model')}+diagnosed",
+                                  info={"campaign": campaign.campaign_id, "effects": [e.name for e in effects]})
+    return Diagnosis(
+        model=model_spec, campaign_id=campaign.campaign_id, mse_before=mse_before, mse_after=mse_after,
+        effects=effects, unexplained=unexplained, augmented=augmented, evidence_before=ev_before,
+        evidence_after=ev_after, residuals_before=res_before, residuals_after=res_after, steps=result.steps,
+        final_table=result.last_table, heldout_runs=campaign.run_ids(True), train_runs=campaign.run_ids(False),
+        settings=s, runtime_s=time.perf_counter() - t_start,
+        profiles={st.candidate.effect.name: st.candidate.profile for st in result.steps if st.candidate.profile})
+
+
+def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dict, ev_before: Evidence,
+                    s: DiagnoseSettings) -> list[EffectReport]:
+    """Canonical parameters, intervals, sequential held-out reductions and evidence of each claimed effect."""
+    final = result.fit
+    config, names = result.config, result.names
+    nl_se = _nl_stderr(problem, config, final, names) if any(a.nl for a in config.actives) else {}
+    cov_names = list(final.names)
+    cov = {(a, b): float(final.cov[i, j]) for i, a in enumerate(cov_names) for j, b in enumerate(cov_names)}
+    cov.update({(k, k): v * v for k, v in nl_se.items()})
+    local = _local_table(final, final.grams, problem.campaign)
+    order = [st.candidate.effect.name for st in result.steps]
+    # sequential held-out MSE with the final nonlinear values: effect i's share of the error removed
+    prev = base_fit
+    hb = base_fit.grams.heldout
+    m0 = base_fit.sse_block_c[hb].sum(axis=0) / max(base_fit.grams.n[hb].sum(), 1)
+    reports = []
+    coefs = final.coefs()
+    for i, name in enumerate(order):
+        part = Configuration([a for a in config.actives if a.name in order[: i + 1]])
+        pnames = [n for n in names if n.split(".", 1)[0] in order[: i + 1]]
+        f = problem.fit(part, coefs, pnames)
+        h = f.grams.heldout
+        n_h = max(f.grams.n[h].sum(), 1)
+        mp = prev.sse_block_c[h].sum(axis=0) / n_h
+        ma = f.sse_block_c[h].sum(axis=0) / n_h
+        test, _ = judge(prev, f, f.grams, problem.settings.hac_lags)
+        by_ch = np.where(m0 > 0, (mp - ma) / np.maximum(m0, 1e-300), 0.0)
+        step_rel = np.where(mp > 0, (mp - ma) / np.maximum(mp, 1e-300), 0.0)
+        chans = [c for c, g in zip(CHANNELS, step_rel, strict=False) if g >= s.report.channel_min_gain]
+        act = next(a for a in config.actives if a.name == name)
+        eff_coefs = {k.split(".", 1)[1]: v for k, v in coefs.items() if k.split(".", 1)[0] == name}
+        eff_cov = {(a.split(".", 1)[1], b.split(".", 1)[1]): v for (a, b), v in cov.items()
+                   if a.split(".", 1)[0] == name and b.split(".", 1)[0] == name}
+        params, se = act.effect.canonical_params(eff_coefs, dict(act.nl), eff_cov,
+                                                 local if name == "flow_unsteadiness" else None)
+        step = result.steps[i]
+        best_c = CHANNELS[int(np.argmax(step_rel))]
+        reduction = float(by_ch.mean())
+        hint = _hint(name, ev_before, params)
+        alt = f"; {', '.join(step.alternatives)} explained nearly as much" if step.alternatives else ""
+        sentence = (f"{hint + '; ' if hint else ''}adding {name} removes {step_rel.max():.0%} of the held-out "
+                    f"{best_c} error (held-out t = {test['t']:.1f} over {test['n_blocks']} blocks){alt}.")
+        notes = []
+        aliases = getattr(act.effect, "aliases", {})
+        for k in eff_coefs:
+            if k in aliases:
+                notes.append(f"{k} stands for {k}{aliases[k]} (proportional sources in this model)")
+        reports.append(EffectReport(name, chans, params, se, sentence, reduction,
+                                    {c: float(v) for c, v in zip(CHANNELS, by_ch, strict=False)}, test, step.alternatives, notes))
+        prev = f
+    return reports
+
+
+def _unexplained(ev: Evidence, effects: list[EffectReport], s: DiagnoseSettings) -> list[Unexplained]:
+    """Residual structure left after the claimed effects: lines, stroke-locked misfit, trends."""
+    out: list[Unexplained] = []
+    tones = [e.params.get("tone_hz") for e in effects if e.name == "flow_unsteadiness"]
+    for p in ev.peaks:
+        if any(t is not None and abs(p.frequency_hz - t) < 0.1 for t in tones):
+            continue
+        best = max(p.ratio, key=p.ratio.get)
+        out.append(Unexplained("narrowband", sorted(p.channels, key=CHANNELS.index),
+                               f"a line at {p.frequency_hz:.2f} Hz stands {p.ratio[best]:.0f}x above the residual "
+                               f"floor in {best}, in runs of every gait frequency (locked to nothing the rig does), "
+                               f"and no library effect removes it.", p.frequency_hz))
+    r = s.report
+    # the share of the residual that repeats every stroke beyond what noise puts at the harmonics
+    excess = {c: ev.locked_share[c] * max(0.0, 1 - 1 / max(ev.locked_ratio[c], 1e-9)) for c in CHANNELS}
+    locked = [c for c in CHANNELS if ev.locked_p[c] < s.evidence.locked_alpha
+              and ev.locked_ratio[c] >= s.evidence.locked_ratio and excess[c] >= r.locked_min_share]
+    if locked:
+        worst = max(locked, key=lambda c: ev.locked_share[c])
+        out.append(Unexplained("gait_locked", locked,
+                               f"{ev.locked_share[worst]:.0%} of the {worst} residual repeats every stroke "
+                               f"({ev.locked_ratio[worst]:.1f}x the power noise would put at the gait harmonics): "
+                               "a misfit of the force physics no library effect removes."))
+    trend = [c for c in CHANNELS if ev.trend[c]["p"] < s.evidence.trend_alpha
+             and ev.trend[c]["share"] >= s.evidence.trend_min_share]
+    if trend:
+        worst = max(trend, key=lambda c: abs(ev.trend[c]["t"]))
+        out.append(Unexplained("trend", trend,
+                               f"the {worst} residual drifts by {ev.trend[worst]['slope']:.3g} per second within "
+                               f"runs (t = {ev.trend[worst]['t']:.1f}) beyond what sensor_drift removed."))
+    return out
+
+
+def with_overrides(settings: DiagnoseSettings, **changes) -> DiagnoseSettings:
+    """A copy with some top-level fields changed."""
+    return replace(settings, **changes)

@@ -1,0 +1,61 @@
+"""MLflow record of a diagnosis: one run in experiment ``diagnose`` per ``workbench diagnose``.
+
+Params: the diagnosed model, the campaign, the settings (flattened). Metrics: held-out MSE per
+channel before and after, the share removed, the number of effects, and each effect's canonical
+parameters and held-out reduction (``effect.<name>.<param>``). Tags: the claimed effects, the
+unexplained kinds, ``git_commit`` and ``dvc_stage``. Artifacts: the whole output folder
+(diagnosis.json, augmented_model.json, report.md, figures/).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+EXPERIMENT = "diagnose"
+
+
+def _flat(d: dict, prefix: str = "") -> dict[str, str]:
+    out: dict[str, str] = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flat(v, key + "."))
+        else:
+            out[key] = str(v)[:500]
+    return out
+
+
+def log_diagnosis(d, out_dir: str | Path, tracking_uri: str | None = None) -> str:
+    """Log ``d`` and the files in ``out_dir``; returns the MLflow run id."""
+    import logging
+
+    import mlflow
+
+    from workbench.project import git_commit, setup_mlflow
+
+    logging.getLogger("mlflow").setLevel(logging.WARNING)
+    setup_mlflow(tracking_uri, EXPERIMENT)
+    tags = {"kind": "diagnose", "campaign": d.campaign_id, "model": d.model, "git_commit": git_commit(),
+            "dvc_stage": os.environ.get("DVC_STAGE", "manual"),
+            "effects": ",".join(e.name for e in d.effects) or "none",
+            "unexplained": ",".join(u.kind for u in d.unexplained) or "none"}
+    params = {"model": d.model, "campaign": d.campaign_id, "heldout_runs": len(d.heldout_runs),
+              "train_runs": len(d.train_runs), **_flat(dataclasses.asdict(d.settings), "settings.")}
+    metrics: dict[str, float] = {"n_effects": float(len(d.effects)), "runtime_s": float(d.runtime_s)}
+    for c, v in d.mse_before.items():
+        metrics[f"mse_before.{c}"] = v
+        metrics[f"mse_after.{c}"] = d.mse_after[c]
+        if v > 0:
+            metrics[f"removed.{c}"] = 1.0 - d.mse_after[c] / v
+    for e in d.effects:
+        metrics[f"effect.{e.name}.heldout_mse_reduction"] = e.heldout_mse_reduction
+        for k, v in e.params.items():
+            if isinstance(v, float) and v == v:
+                metrics[f"effect.{e.name}.{k}"] = v
+    with mlflow.start_run(run_name=f"{d.campaign_id}-{d.model}"[:200], tags=tags) as run:
+        mlflow.log_params({k[:250]: v for k, v in list(params.items())[:100]})
+        mlflow.log_metrics(metrics)
+        mlflow.log_artifacts(str(out_dir))
+        return run.info.run_id

@@ -1,0 +1,114 @@
+"""What an optimisation leaves behind, as plain data: the gait file, the controller file, the tables.
+
+* :func:`gait_document` — ``datasets/gaits/<task>-<model>.json`` exactly per data contract
+  section 5 (``task``, ``model``, ``solutions`` best score first with ``rank``, ``params``,
+  ``objectives`` f1..f3 and ``score``), plus extra keys readers may ignore (objective names,
+  weights, settings, seed, model spec and description).
+* :func:`controller_document` — the file a robot controller loads: per retained gait and per leg
+  (LF, RF, LH, RH) the two joint-angle functions ``angle_deg(t) = offset_deg + amplitude_deg *
+  sin(2 pi frequency_hz t + phase_rad)`` (paper eq. 3 rewritten with a positive amplitude) and one
+  cycle sampled at the controller's rate. docs/gaits.md documents the format.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from workbench.gait.objectives import TaskSpec
+from workbench.hydro.robot import LEG_NAMES
+from workbench.hydro.simulator import GaitBatch
+
+CONTROLLER_SCHEMA = "workbench/gait-controller@1"
+GAITS_SCHEMA = "workbench/gaits@1"
+
+
+def model_label(spec: str) -> str:
+    """A file-name-safe label for a model spec: ``ef``, ``lstm``, ``models:/fed-lstm@tuned`` -> ``fed-lstm-tuned``."""
+    body = spec[len("models:/"):] if spec.startswith("models:/") else spec
+    label = re.sub(r"[^a-z0-9_-]+", "-", body.lower()).strip("-")
+    return label or "model"
+
+
+def gait_document(spec: TaskSpec, model: str, gaits: GaitBatch, f: np.ndarray, s: np.ndarray, *,
+                  extra: Mapping[str, Any] | None = None) -> dict:
+    """The contract gait file (section 5) for retained gaits already sorted best score first."""
+    params = gaits.to_params()
+    solutions = []
+    for i, p in enumerate(params):
+        solutions.append({
+            "rank": i + 1,
+            "params": {"theta_h_min_deg": p["theta_h_min_deg"], "theta_k_max_deg": p["theta_k_max_deg"],
+                       "frequency_hz": p["frequency_hz"], "alpha_rad": p["alpha_rad"]},
+            "objectives": {"f1": float(f[i, 0]), "f2": float(f[i, 1]), "f3": float(f[i, 2])},
+            "score": float(s[i]),
+        })
+    doc = {"task": spec.task, "model": model, "solutions": solutions,
+           "schema": GAITS_SCHEMA, "objective_names": spec.names, "weights": list(spec.weights),
+           "fixed": {"theta_h_max_deg": gaits.theta_h_max_deg, "theta_k_min_deg": gaits.theta_k_min_deg,
+                     "phi_rad": gaits.phi_rad}}
+    doc.update(dict(extra or {}))
+    return doc
+
+
+def joint_functions(gaits: GaitBatch, i: int) -> dict:
+    """Per leg of gait ``i``: HFE and KFE as offset + amplitude sin(2 pi f t + phase), amplitude >= 0."""
+    legs = {}
+    for j, leg in enumerate(LEG_NAMES):
+        alpha = float(gaits.alpha_rad[i, j])
+        joints = {}
+        for joint, lo, hi, extra in (
+                ("hfe", float(gaits.theta_h_min_deg[i, j]), gaits.theta_h_max_deg, 0.0),
+                ("kfe", gaits.theta_k_min_deg, float(gaits.theta_k_max_deg[i, j]), gaits.phi_rad)):
+            amp = (hi - lo) / 2  # eq. 3: (max - min) / 2 with min/max as the paper names them
+            phase = alpha + extra
+            if amp < 0:  # a negative amplitude is a positive one half a cycle later
+                amp, phase = -amp, phase + math.pi
+            joints[joint] = {"offset_deg": (hi + lo) / 2, "amplitude_deg": amp,
+                             "phase_rad": float(np.mod(phase, 2 * math.pi))}
+        legs[leg] = joints
+    return legs
+
+
+def controller_document(spec: TaskSpec, model: str, gaits: GaitBatch, s: np.ndarray, *, sample_rate_hz: float,
+                        haa_deg: Sequence[float]) -> dict:
+    """The controller gait file: every retained gait as joint-angle functions per leg plus one sampled cycle."""
+    out = []
+    for i in range(len(gaits)):
+        f = float(gaits.frequency_hz[i])
+        n = max(2, int(round(sample_rate_hz / f)))
+        t = np.arange(n) / sample_rate_hz
+        th, tk = gaits.rows([i]).sinusoid().evaluate(t)[:2]
+        table: dict[str, Any] = {"dt_s": 1.0 / sample_rate_hz, "time_s": [round(v, 6) for v in t.tolist()]}
+        for j, leg in enumerate(LEG_NAMES):
+            table[leg] = {"hfe_deg": [round(v, 4) for v in th[0, j].tolist()],
+                          "kfe_deg": [round(v, 4) for v in tk[0, j].tolist()]}
+        out.append({"rank": i + 1, "score": float(s[i]), "frequency_hz": f, "period_s": 1.0 / f,
+                    "alpha_rad": {leg: float(gaits.alpha_rad[i, j]) for j, leg in enumerate(LEG_NAMES)},
+                    "joints": joint_functions(gaits, i), "cycle": table})
+    return {
+        "schema": CONTROLLER_SCHEMA, "task": spec.task, "model": model,
+        "equation": "angle_deg(t) = offset_deg + amplitude_deg * sin(2*pi*frequency_hz*t + phase_rad)",
+        "joints": {"hfe": "hip flexion-extension theta_h: thigh angle from the forward axis, counter-clockwise "
+                          "seen from the leg's outer side (-90 deg hangs down)",
+                   "kfe": "knee theta_k: crank angle relative to the thigh (80 deg nearly straight, -80 folded)"},
+        "conventions": "docs/conventions.md (workbench leg frame); t = 0 is the start of the gait",
+        "legs": list(LEG_NAMES),
+        "haa_deg": {leg: float(a) for leg, a in zip(LEG_NAMES, haa_deg, strict=True)},
+        "gaits": out,
+    }
+
+
+def best_table(spec: TaskSpec, gaits: GaitBatch, f: np.ndarray, s: np.ndarray) -> list[dict]:
+    """One flat row per retained gait (rank, parameters, objectives, score): the best-8 table."""
+    rows = []
+    for i, p in enumerate(gaits.to_params()):
+        row = {"rank": i + 1, "theta_h_min_deg": p["theta_h_min_deg"], "theta_k_max_deg": p["theta_k_max_deg"],
+               "frequency_hz": p["frequency_hz"]}
+        row.update({f"alpha_{leg.lower()}_rad": a for leg, a in zip(LEG_NAMES, p["alpha_rad"], strict=True)})
+        row.update({"f1": float(f[i, 0]), "f2": float(f[i, 1]), "f3": float(f[i, 2]), "score": float(s[i])})
+        rows.append(row)
+    return rows

@@ -1,0 +1,122 @@
+"""The gait optimisation problem as a pymoo ``Problem``: a whole population per simulator call.
+
+``GaitProblem._evaluate`` maps the population's decision vectors (paper Table II) to a
+:class:`GaitBatch`, swims all of it in one :func:`simulate` call (leg wrenches tabulated per
+gait shape when the model has memory, :mod:`workbench.gait.tabulate`) and writes the (pop, 3)
+objectives of the task (paper Table III) to ``out["F"]``. The same object serves ``minimize``,
+an ask/tell loop (e.g. with pool trials in the loop) and re-simulation of retained gaits.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+from pymoo.core.problem import Problem
+
+from workbench.gait.objectives import TaskSpec, objectives
+from workbench.gait.space import VARIABLES, GaitSpace
+from workbench.gait.tabulate import TabulatedLegModel, TabulationSettings
+from workbench.hydro.legmodel import LegForceModel
+from workbench.hydro.robot import RobotParams
+from workbench.hydro.simulator import DEFAULT_DT_S, GaitBatch, Trajectory, simulate
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """Simulator settings other than the duration (which is the task's cap)."""
+
+    dt_s: float = DEFAULT_DT_S
+    tol_mps: float = 1e-4
+    max_iter: int = 40
+    relaxation: float = 0.8
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any] | None) -> "SimSettings":
+        """From the parameter file's ``simulation`` section (unknown keys refused)."""
+        doc = dict(doc or {})
+        unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"unknown simulation setting(s) {unknown}; the duration is the task's cap_s")
+        return cls(**{k: (int(v) if k == "max_iter" else float(v)) for k, v in doc.items()})
+
+
+@dataclass
+class EvaluationLog:
+    """Running totals of the evaluations: gaits, simulator calls, seconds, unconverged gaits, table work."""
+
+    gaits: int = 0
+    calls: int = 0
+    seconds: float = 0.0
+    unconverged: int = 0
+    table: dict = field(default_factory=dict)
+
+    def add_table(self, stats: Mapping[str, Any]) -> None:
+        """Accumulate a tabulated model's work counters."""
+        for k, v in stats.items():
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and k != "shapes":
+                self.table[k] = self.table.get(k, 0) + v
+            elif k == "kind":
+                self.table[k] = v
+
+
+class GaitProblem(Problem):
+    """Minimise the task's three objectives over gait parameters; one simulation per population."""
+
+    def __init__(self, spec: TaskSpec, leg_model: LegForceModel, robot: RobotParams, *,
+                 space: GaitSpace | None = None, sim: SimSettings | None = None,
+                 tabulation: TabulationSettings | None = None):
+        self.spec = spec
+        self.leg_model = leg_model
+        self.robot = robot
+        self.space = space or GaitSpace()
+        self.sim = sim or SimSettings()
+        self.tabulation = tabulation or TabulationSettings()
+        self.log = EvaluationLog()
+        self._flow_kernel: np.ndarray | None = None
+        super().__init__(n_var=len(VARIABLES), n_obj=3, xl=self.space.xl, xu=self.space.xu, vtype=float)
+
+    # -- pymoo -----------------------------------------------------------------------------------
+    def _evaluate(self, x, out, *args, **kwargs):
+        out["F"] = self.evaluate_gaits(self.space.gaits(x))[0]
+
+    # -- direct use ------------------------------------------------------------------------------
+    def model_for(self, gaits: GaitBatch) -> LegForceModel:
+        """The leg model the simulator gets for this batch: tabulated (bound to it) or the model itself."""
+        if self.tabulation.mode == "never":
+            return self.leg_model
+        wrapped = TabulatedLegModel(self.leg_model, gaits, self.tabulation, sim_dt_s=self.sim.dt_s,
+                                    flow_kernel=self._flow_kernel)
+        if not wrapped.tabulating:
+            return self.leg_model
+        if self._flow_kernel is None:
+            self._flow_kernel = wrapped.flow_kernel  # probe the model once per problem
+        return wrapped
+
+    def simulate(self, gaits: GaitBatch) -> Trajectory:
+        """Swim the batch for the task's cap (one simulator call), counting the work."""
+        t0 = time.perf_counter()
+        model = self.model_for(gaits)
+        traj = simulate(gaits, model, self.robot, duration_s=self.spec.cap_s, dt_s=self.sim.dt_s,
+                        tol_mps=self.sim.tol_mps, max_iter=self.sim.max_iter, relaxation=self.sim.relaxation)
+        self.log.gaits += len(gaits)
+        self.log.calls += 1
+        self.log.seconds += time.perf_counter() - t0
+        self.log.unconverged += int((~traj.converged).sum())
+        if isinstance(model, TabulatedLegModel):
+            self.log.add_table(model.stats())
+        return traj
+
+    def evaluate_gaits(self, gaits: GaitBatch) -> tuple[np.ndarray, Trajectory]:
+        """(B, 3) objectives and the trajectories of a gait batch."""
+        traj = self.simulate(gaits)
+        return objectives(traj, self.spec), traj
+
+    def describe(self) -> dict:
+        """Settings worth recording with results."""
+        from dataclasses import asdict
+
+        return {"task": asdict(self.spec), "space": asdict(self.space), "simulation": asdict(self.sim),
+                "tabulation": asdict(self.tabulation), "model": self.leg_model.describe()}
