@@ -71,9 +71,9 @@ def test_lags_follow_the_continuous_first_order_response():
     w = 2 * np.pi * f
     exact = (np.sin(w * t) - w * tau * np.cos(w * t)) / (1 + (w * tau) ** 2)
     got = lag_filter(np.sin(w * t)[None], tau, dt)[0]
-    assert np.abs(got - exact)[200:].max() < 2e-4
+    assert np.abs(got - exact)[200:].max() < 5e-4
     got2 = first_order_lag(np.sin(w * t)[None], 1 / tau, dt)[0]
-    assert np.abs(got2 - exact)[200:].max() < 2e-4
+    assert np.abs(got2 - exact)[200:].max() < 5e-4
 
 
 def test_resonance_filter_has_the_modes_gain_and_phase():

@@ -449,11 +449,13 @@ def line_scan(runs: list[RunResidual], parts: list[np.ndarray], settings: Eviden
     scales = []
     for run, e in zip(runs, parts):
         t = run.time_s[run.fit][::2]
-        x = e[::2]
         if len(t) < 8:
             continue
+        # a Hann taper keeps a strong line's sidelobes (-31 dB) from posing as lines of their own
+        taper = np.hanning(len(t) + 2)[1:-1]
+        x = e[::2] * taper[:, None]
         ph = 2 * np.pi * np.outer(t, freqs)
-        p = ((x.T @ np.sin(ph)) ** 2 + (x.T @ np.cos(ph)) ** 2).T / len(t)
+        p = ((x.T @ np.sin(ph)) ** 2 + (x.T @ np.cos(ph)) ** 2).T / (taper ** 2).sum()
         total += p
         scales.append(np.median(p, axis=0))
     if not scales:
@@ -569,9 +571,10 @@ def tone_scan(runs: list[RunResidual], gains: list[np.ndarray], weights: np.ndar
         e = run.resid[run.fit]
         e = e - e.mean(axis=0) - gait_locked(run, cutoff_hz)
         # every other tick is plenty below the low-pass cutoff
-        z = (weights * gg * e).sum(axis=1)[::2]
-        big = (weights * gg * gg).sum(axis=1)[::2]
         t = run.time_s[run.fit][::2]
+        taper = np.hanning(len(t) + 2)[1:-1]      # tapered (weighted) least squares: low sidelobes
+        z = (weights * gg * e).sum(axis=1)[::2] * taper
+        big = (weights * gg * gg).sum(axis=1)[::2] * taper
         ph = 2 * np.pi * np.outer(t, freqs)
         sn, cs = np.sin(ph), np.cos(ph)
         b1, b2 = z @ sn, z @ cs

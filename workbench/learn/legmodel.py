@@ -146,7 +146,7 @@ def load_model(folder: str | Path, **info) -> LearnedLegModel:
     net = build_net(cfg, int(spec["seq_len"]))
     try:
         net.load_state_dict(torch.load(folder / "weights.pt", map_location="cpu", weights_only=True))
-    except (OSError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - missing, torn, foreign or mismatched weights: one line for all
         raise ModelError(f"weights.pt does not load ({str(exc).splitlines()[0]})", path=folder) from exc
     return LearnedLegModel(net, model=cfg, seq_len=spec["seq_len"], dt_s=spec["dt_s"],
                            norm=Normalisation.from_dict(spec["normalisation"]),
