@@ -1,0 +1,128 @@
+"""Train through the CLI into a real MLflow sqlite store, register, reload in a fresh process, evaluate."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import CONFIG, subprocess_env
+from workbench.cli import main
+
+SHRINK = ["data.train_windows_per_epoch=1536", "data.batch_size=128", "model.hidden_size=16", "trainer.max_epochs=2",
+          "trainer.max_time_s=null", "trainer.early_stop_patience=0"]
+
+
+@pytest.fixture(scope="module")
+def trained(project, parquet):
+    interp, _ = parquet
+    out = project / "datasets" / "models" / "fed-lstm"
+    args = ["train", "--config", str(CONFIG), "--data", str(interp), "--out", str(out), "--dvc-stage", "train",
+            "--quiet"]
+    for s in SHRINK:
+        args += ["--set", s]
+    assert main(args) == 0
+    return out
+
+
+def test_train_writes_model_folder_and_registers_champion(trained, project):
+    from mlflow import MlflowClient
+
+    assert {"model.json", "weights.pt", "split.json", "metrics.json", "config.json", "history.csv",
+            "learning_curve.png"} <= {p.name for p in trained.iterdir()}
+    client = MlflowClient()
+    mv = client.get_model_version_by_alias("fed-lstm", "champion")
+    run = client.get_run(mv.run_id)
+    tags = run.data.tags
+    assert tags["campaign"] == "synth" and tags["variant"] == "lstm" and tags["dvc_stage"] == "train"
+    assert tags["kind"] == "train" and tags["git_commit"]
+    assert run.data.params["model.dropout"] == "0.21" and run.data.params["data.seq_len"] == "16"
+    curve = client.get_metric_history(run.info.run_id, "val_loss")
+    assert [m.step for m in curve] == [1, 2]
+    saved = json.loads((trained / "metrics.json").read_text())
+    assert run.data.metrics["test_mse_fy_n"] == pytest.approx(saved["test_mse_fy_n"])
+    assert {"model/model.json", "model/weights.pt"} <= {a.path for a in client.list_artifacts(run.info.run_id, "model")}
+
+
+def test_registered_model_reproduces_its_test_metric_in_a_fresh_process(trained, project, parquet):
+    interp, _ = parquet
+    code = f"""
+import json, sys
+from workbench.hydro.legmodel import load_leg_model
+from workbench.learn.evaluate import evaluate_models
+from workbench.learn.split import ParameterSplit
+from workbench.learn.windows import read_table
+m = load_leg_model("lstm")
+split = ParameterSplit.from_dict(json.load(open({str(trained / 'split.json')!r})))
+metrics, _ = evaluate_models(read_table([{str(interp)!r}]), split, {{"lstm": m}})
+print(json.dumps({{"run_id": m.info["run_id"], "uri": m.info["model_uri"], "mse": metrics["lstm"]["mse"]}}))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=subprocess_env(project),
+                         cwd=project, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    from mlflow import MlflowClient
+
+    logged = MlflowClient().get_run(got["run_id"]).data.metrics
+    assert got["uri"] == "models:/fed-lstm@champion"
+    for ch, v in got["mse"].items():
+        assert v == pytest.approx(logged[f"test_mse_{ch}"], rel=1e-6)
+
+
+def test_evaluate_writes_the_contract_metrics_and_figures(trained, project, parquet, tmp_path):
+    interp, measured = parquet
+    out, figs = tmp_path / "metrics" / "leg_models.json", tmp_path / "figs"
+    # the interpolated file: interpolated rows must not enter any metric
+    assert main(["evaluate", "--config", str(CONFIG), "--data", str(interp), "--split", str(trained / "split.json"),
+                 "--out", str(out), "--figures", str(figs), "--dvc-stage", "evaluate"]) == 0
+    m = json.loads(out.read_text())
+    channels = ["fx_n", "fy_n", "fz_n", "tx_nm", "ty_nm", "tz_nm"]
+    assert {"ef", "lstm"} <= set(m)
+    for name in ("ef", "lstm"):
+        assert list(m[name]["mse"]) == channels and list(m[name]["r2"]) == channels
+        assert list(m[name]["mse_by_flow_speed"]) == ["0.10", "0.20"]  # measured speeds only, no 0.15
+        assert all(list(v) == channels for v in m[name]["mse_by_flow_speed"].values())
+        assert m[name]["by_parameter_set"] and all(np.isfinite(v) for v in m[name]["mse"].values())
+    split = json.loads((trained / "split.json").read_text())
+    n_test_sets = split["counts"]["test"]
+    assert m["lstm"]["n_runs"] == m["ef"]["n_runs"] == 2 * n_test_sets
+    assert m["lstm"]["n_ticks"] == m["ef"]["n_ticks"] == 2 * n_test_sets * (390 - 15)
+    assert {p.name for p in figs.iterdir()} == {"prediction_a.png", "prediction_b.png", "mse_boxplot.png"}
+    # the same numbers from the measured-only file
+    out2 = tmp_path / "again.json"
+    assert main(["evaluate", "--config", str(CONFIG), "--data", str(measured), "--split", str(trained / "split.json"),
+                 "--out", str(out2), "--no-mlflow"]) == 0
+    assert json.loads(out2.read_text())["lstm"]["mse"] == m["lstm"]["mse"]
+    from mlflow import MlflowClient
+
+    exp = MlflowClient().get_experiment_by_name("fed-lstm")
+    runs = MlflowClient().search_runs([exp.experiment_id], "tags.kind = 'evaluate'")
+    assert len(runs) == 1 and runs[0].data.metrics["ef_mse_fy_n"] == pytest.approx(m["ef"]["mse"]["fy_n"])
+    assert runs[0].data.tags["dvc_stage"] == "evaluate"
+
+
+def test_champion_falls_back_to_the_local_folder(trained, project, capsys):
+    from workbench.errors import ModelError
+    from workbench.learn.registry import load_champion
+
+    m = load_champion(alias="no-such-alias")
+    assert m.info["model_uri"].endswith("fed-lstm")
+    assert "using the local model folder" in capsys.readouterr().err
+    with pytest.raises(ModelError, match="no trained LSTM"):
+        load_champion(alias="no-such-alias", fallback=project / "empty")
+
+
+def test_bad_input_is_one_line(project, parquet, capsys, tmp_path):
+    interp, _ = parquet
+    assert main(["train", "--config", str(CONFIG), "--data", str(interp), "--set", "model.colour=red"]) == 2
+    assert "unknown configuration key 'model.colour'" in capsys.readouterr().err
+    assert main(["train", "--config", str(CONFIG), "--data", str(tmp_path / "none.parquet"), "--no-mlflow"]) == 2
+    assert "processed data file not found" in capsys.readouterr().err
+    assert main(["evaluate", "--config", str(CONFIG), "--data", str(interp), "--split", str(tmp_path / "s.json"),
+                 "--out", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "split file not found" in err and err.count("\n") == 1
+    assert not (tmp_path / "m.json").exists()
