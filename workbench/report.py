@@ -1,0 +1,289 @@
+"""The final report: campaign quality, drag fit, EF-vs-LSTM accuracy, gaits, trial scores, diagnosis.
+
+:func:`collect` reads the pipeline's result files (the data contract's section 5 and each
+stage's own summaries) into plain dicts; :func:`render_markdown` and :func:`render_html` turn
+them into a page whose figures are the stages' own PNGs (linked relative to the report, so the
+report folder stays small) with links to the MLflow runs behind each step.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from workbench.contract.columns import WRENCH_CHANNELS
+
+MLFLOW_EXPERIMENTS = ("train", "tune", "evaluate", "optimize", "diagnose")
+
+
+@dataclass
+class Section:
+    """One part of the report: a title, paragraphs, tables and figures."""
+
+    title: str
+    paragraphs: list[str] = field(default_factory=list)
+    #: tables as (caption, header, rows)
+    tables: list[tuple[str, list[str], list[list[str]]]] = field(default_factory=list)
+    figures: list[Path] = field(default_factory=list)
+    links: list[tuple[str, str]] = field(default_factory=list)
+
+
+def _load_json(path: Path) -> Any | None:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def _fmt(v: Any, digits: int = 3) -> str:
+    if v is None or v == "":
+        return "-"
+    if isinstance(v, float):
+        if v != 0 and (abs(v) < 1e-3 or abs(v) >= 1e5):
+            return f"{v:.{digits}e}"
+        return f"{v:.{digits}f}"
+    return str(v)
+
+
+def _pngs(folder: Path, limit: int = 12) -> list[Path]:
+    if not folder.is_dir():
+        return []
+    return sorted(folder.rglob("*.png"))[:limit]
+
+
+def campaigns_section(datasets: Path) -> Section:
+    """Per campaign: runs, ticks, dropped frames, clock offset/drift found, flags (ingest quality reports)."""
+    sec = Section("Campaigns and data quality")
+    rows = []
+    for q in sorted((datasets / "processed").glob("*.quality.json")):
+        doc = _load_json(q) or {}
+        runs = [r for r in doc.get("runs", []) if isinstance(r, dict)]
+        drift = [abs(r["clock_drift_ppm"]) for r in runs if isinstance(r.get("clock_drift_ppm"), (int, float))]
+        resid = [r["edge_residual_max_ms"] for r in runs if isinstance(r.get("edge_residual_max_ms"), (int, float))]
+        rows.append([doc.get("campaign_id", q.stem), doc.get("facility", "?"),
+                     f"{doc.get('runs_ingested', '?')}/{doc.get('runs_total', '?')}", _fmt(doc.get("ticks")),
+                     _fmt(doc.get("dropped_frames")), _fmt(max(drift) if drift else None, 1),
+                     _fmt(max(resid) if resid else None, 2), str(len(doc.get("runs_flagged", []) or [])),
+                     str(len(doc.get("runs_saturated", []) or []))])
+    if rows:
+        sec.tables.append(("Ingest quality (datasets/processed/*.quality.json)",
+                           ["campaign", "facility", "runs ingested", "ticks", "dropped frames",
+                            "max |drift| (ppm)", "max edge residual (ms)", "runs flagged", "runs saturated"], rows))
+    else:
+        sec.paragraphs.append("No processed campaigns yet (run `dvc repro` or `workbench ingest`).")
+    return sec
+
+
+def drag_section(datasets: Path) -> Section:
+    """Body drag fits with standard errors, R^2 and the physical-doubt flags."""
+    sec = Section("Body drag (towing tank)")
+    for dj in sorted((datasets / "drag").glob("*/drag.json")):
+        doc = _load_json(dj) or {}
+        rows = []
+        for heading in ("forward", "lateral"):
+            e = doc.get(heading) or {}
+            c = e.get("coefficients") or [None] * 3
+            s = e.get("stderr") or [None] * 3
+            rows.append([heading] + [f"{_fmt(ci)} +- {_fmt(si)}" for ci, si in zip(c, s, strict=False)] + [_fmt(e.get("r2"), 5)])
+            for flag in e.get("flags", []) or []:
+                sec.paragraphs.append(f"**{dj.parent.name} {heading}:** {flag}")
+        sec.tables.append((f"F = c2 v^2 + c1 v + c0 (N), {dj.parent.name}", ["heading", "c2", "c1", "c0", "R^2"], rows))
+        sec.figures += _pngs(dj.parent)
+    if not sec.tables:
+        sec.paragraphs.append("No drag fit yet.")
+    return sec
+
+
+def leg_models_section(datasets: Path) -> Section:
+    """EF vs FED-LSTM on the held-out parameter sets (datasets/metrics/leg_models.json)."""
+    sec = Section("Leg force models: EF vs FED-LSTM (held-out parameter sets)")
+    doc = _load_json(datasets / "metrics" / "leg_models.json")
+    if not doc:
+        sec.paragraphs.append("No evaluation yet.")
+        return sec
+    models = [m for m in doc if isinstance(doc[m], dict) and "mse" in doc[m]]
+    rows = []
+    for m in models:
+        rows.append([m, "MSE"] + [_fmt(doc[m]["mse"].get(ch)) for ch in WRENCH_CHANNELS])
+        rows.append([m, "R^2"] + [_fmt(doc[m].get("r2", {}).get(ch)) for ch in WRENCH_CHANNELS])
+    sec.tables.append(("Per channel", ["model", "metric", *WRENCH_CHANNELS], rows))
+    if "ef" in models and "lstm" in models:
+        speeds = sorted(doc["ef"].get("mse_by_flow_speed", {}))
+        ratio_rows = []
+        for sp in speeds:
+            ef = doc["ef"]["mse_by_flow_speed"].get(sp, {})
+            ls = doc["lstm"].get("mse_by_flow_speed", {}).get(sp, {})
+            ratio_rows.append([sp] + [_fmt(ls[ch] / ef[ch]) if ef.get(ch) and ch in ls else "-"
+                                      for ch in ("fy_n", "fz_n", "tx_nm")])
+        sec.tables.append(("LSTM MSE / EF MSE by flow speed (target <= 0.5)", ["flow (m/s)", "fy_n", "fz_n", "tx_nm"],
+                           ratio_rows))
+    sec.figures += _pngs(datasets / "metrics")
+    return sec
+
+
+def gaits_section(datasets: Path) -> Section:
+    """Best retained gait of each task and model, and the optimisation plots."""
+    sec = Section("Optimised gaits (NSGA-II)")
+    rows = []
+    for gj in sorted((datasets / "gaits").glob("*.json")):
+        doc = _load_json(gj)
+        if not isinstance(doc, dict) or "solutions" not in doc or not doc["solutions"]:
+            continue
+        best = doc["solutions"][0]
+        p, o = best.get("params", {}), best.get("objectives", {})
+        alpha = p.get("alpha_rad", [])
+        rows.append([doc.get("task", "?"), doc.get("model", "?"), str(len(doc["solutions"])),
+                     _fmt(p.get("theta_h_min_deg"), 1), _fmt(p.get("theta_k_max_deg"), 1), _fmt(p.get("frequency_hz"), 3),
+                     ", ".join(_fmt(a, 2) for a in alpha), _fmt(o.get("f1")), _fmt(o.get("f2")), _fmt(o.get("f3"), 2),
+                     _fmt(best.get("score"))])
+    if rows:
+        sec.tables.append(("Best solution per task and model (datasets/gaits/*.json)",
+                           ["task", "model", "retained", "theta_h_min (deg)", "theta_k_max (deg)", "f (Hz)",
+                            "alpha LF, RF, LH, RH (rad)", "f1", "f2", "f3 (s)", "S"], rows))
+    else:
+        sec.paragraphs.append("No gaits yet.")
+    sec.figures += _pngs(datasets / "gaits")
+    return sec
+
+
+def trials_section(datasets: Path) -> Section:
+    """Pool-trial scores per model and task, and the Table IV-style comparison."""
+    sec = Section("Open-water trials")
+    for summary in sorted((datasets / "scores").glob("*/summary.json")):
+        comp = summary.parent / "comparison.md"
+        if comp.is_file():
+            sec.paragraphs.append(comp.read_text(encoding="utf-8"))
+        doc = _load_json(summary) or {}
+        failed = doc.get("failed") or []
+        if failed:
+            sec.paragraphs.append(f"**Failed trials ({summary.parent.name}):** " +
+                                  "; ".join(f"{f.get('trial_id', '?')}: {f.get('error', '')}" if isinstance(f, dict)
+                                            else str(f) for f in failed))
+        sec.figures += [p for p in _pngs(summary.parent) if "trajector" in p.name or "box" in p.name]
+    if not sec.paragraphs and not sec.figures:
+        sec.paragraphs.append("No trial scores yet.")
+    return sec
+
+
+def diagnosis_section(datasets: Path) -> Section:
+    """Residual diagnosis: effects found with parameters, error before and after, what stays unexplained."""
+    sec = Section("Closing the loop: model diagnosis")
+    for dj in sorted((datasets / "diagnosis").glob("*/diagnosis.json")):
+        doc = _load_json(dj) or {}
+        chans = doc.get("channels", list(WRENCH_CHANNELS))
+        before, after = doc.get("mse_before", {}), doc.get("mse_after", {})
+        sec.tables.append((f"{dj.parent.name}: held-out MSE of model '{doc.get('model', '?')}' before and after",
+                           ["", *chans], [["before"] + [_fmt(before.get(c)) for c in chans],
+                                          ["after"] + [_fmt(after.get(c)) for c in chans]]))
+        eff_rows = [[e.get("name", "?"), ", ".join(e.get("channels", [])),
+                     ", ".join(f"{k}={_fmt(v)}" for k, v in (e.get("params") or {}).items()),
+                     _fmt(e.get("heldout_mse_reduction")), e.get("evidence", "")] for e in doc.get("effects", [])]
+        if eff_rows:
+            sec.tables.append(("Effects added (best first)",
+                               ["effect", "channels", "parameters", "held-out MSE reduction", "evidence"], eff_rows))
+        for u in doc.get("unexplained", []) or []:
+            sec.paragraphs.append(f"**Unexplained ({u.get('kind', '?')})** in {', '.join(u.get('channels', []))}"
+                                  + (f" at {_fmt(u.get('frequency_hz'), 2)} Hz" if u.get("frequency_hz") else "")
+                                  + f": {u.get('evidence', '')}")
+        sec.figures += _pngs(dj.parent, limit=6)
+    if not sec.tables:
+        sec.paragraphs.append("No diagnosis yet.")
+    return sec
+
+
+def mlflow_section(tracking_uri: str | None, ui_url: str) -> Section:
+    """Links to the latest MLflow run of each pipeline step (open with `workbench ui`)."""
+    sec = Section("MLflow runs")
+    try:
+        from mlflow.tracking import MlflowClient
+
+        from workbench.project import mlflow_tracking_uri
+
+        client = MlflowClient(tracking_uri=mlflow_tracking_uri(tracking_uri))
+        for name in MLFLOW_EXPERIMENTS:
+            exp = client.get_experiment_by_name(name)
+            if exp is None:
+                continue
+            runs = client.search_runs([exp.experiment_id], order_by=["attributes.start_time DESC"], max_results=5)
+            for r in runs:
+                label = f"{name}: {r.info.run_name} ({r.info.status.lower()})"
+                sec.links.append((label, f"{ui_url}/#/experiments/{exp.experiment_id}/runs/{r.info.run_id}"))
+    except Exception as exc:  # a report without links is still a report
+        sec.paragraphs.append(f"MLflow store not readable: {type(exc).__name__}: {exc}")
+    if not sec.links and not sec.paragraphs:
+        sec.paragraphs.append("No MLflow runs yet.")
+    sec.paragraphs.append(f"Start the UI with `workbench ui`, then open {ui_url}.")
+    return sec
+
+
+def collect(datasets: Path, tracking_uri: str | None = None, ui_url: str = "http://127.0.0.1:5000",
+            with_mlflow: bool = True) -> list[Section]:
+    """All report sections, in the order the data flows through the workbench."""
+    secs = [campaigns_section(datasets), drag_section(datasets), leg_models_section(datasets),
+            gaits_section(datasets), trials_section(datasets), diagnosis_section(datasets)]
+    if with_mlflow:
+        secs.append(mlflow_section(tracking_uri, ui_url))
+    return secs
+
+
+def _rel(path: Path, out_dir: Path) -> str:
+    return Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
+
+
+def render_markdown(sections: list[Section], out_dir: Path, title: str = "Workbench report") -> str:
+    """The report as markdown, figure links relative to ``out_dir``."""
+    lines = [f"# {title}", ""]
+    for s in sections:
+        lines += [f"## {s.title}", ""]
+        for p in s.paragraphs:
+            lines += [p, ""]
+        for caption, header, rows in s.tables:
+            lines += [f"*{caption}*", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+            lines += ["| " + " | ".join(str(c).replace("|", "/") for c in r) + " |" for r in rows]
+            lines.append("")
+        for f in s.figures:
+            lines += [f"![{f.stem}]({_rel(f, out_dir)})", ""]
+        for label, url in s.links:
+            lines.append(f"- [{label}]({url})")
+        if s.links:
+            lines.append("")
+    return "\n".join(lines)
+
+
+def render_html(sections: list[Section], out_dir: Path, title: str = "Workbench report") -> str:
+    """The report as one HTML page (no scripts, no network), figures linked relative to ``out_dir``."""
+    import re
+
+    def md_inline(text: str) -> str:
+        t = html.escape(text)
+        t = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", t)
+        return re.sub(r"`(.+?)`", r"<code>\1</code>", t)
+
+    out = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+           "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}"
+           "table{border-collapse:collapse;margin:.5em 0 1.5em}td,th{border:1px solid #ccc;padding:3px 8px;"
+           "font-size:90%}th{background:#f3f3f3}img{max-width:100%;margin:.5em 0;border:1px solid #eee}"
+           "pre{white-space:pre-wrap}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
+    out.append("<p>" + " &middot; ".join(f"<a href='#s{i}'>{html.escape(s.title)}</a>"
+                                          for i, s in enumerate(sections)) + "</p>")
+    for i, s in enumerate(sections):
+        out.append(f"<h2 id='s{i}'>{html.escape(s.title)}</h2>")
+        for p in s.paragraphs:
+            out.append(f"<pre>{md_inline(p)}</pre>" if "\n" in p else f"<p>{md_inline(p)}</p>")
+        for caption, header, rows in s.tables:
+            out.append(f"<table><caption>{html.escape(caption)}</caption><tr>"
+                       + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>")
+            out += ["<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows]
+            out.append("</table>")
+        for f in s.figures:
+            out.append(f"<figure><img src='{html.escape(_rel(f, out_dir))}' alt='{html.escape(f.stem)}'>"
+                       f"<figcaption>{html.escape(f.name)}</figcaption></figure>")
+        if s.links:
+            out.append("<ul>" + "".join(f"<li><a href='{html.escape(u)}'>{html.escape(lbl)}</a></li>"
+                                        for lbl, u in s.links) + "</ul>")
+    out.append("</body></html>")
+    return "\n".join(out)
