@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed-stamp
 export PATH := $(abspath $(BIN)):$(PATH)
 export MPLBACKEND := Agg
 
-.PHONY: setup demo test test-fast bench lint clean-demo
+.PHONY: setup system-deps demo test test-fast bench lint clean-demo
 
 $(STAMP): pyproject.toml
 	@echo "== setting up $(VENV) (torch CPU wheel, then the workbench)"
@@ -21,12 +21,23 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP)
 
+# Debian packages some integration tests need (real PostgreSQL, real headless Chromium).
+SYSTEM_PKGS := postgresql chromium chromium-driver
+system-deps:
+	@missing=""; for p in $(SYSTEM_PKGS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "== installing$$missing (Debian packages for the integration tests)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	  else echo "== missing system packages:$$missing (sudo apt-get install$$missing); their tests will fail"; fi; \
+	fi
+
 demo: setup
 	@echo "== dvc repro (virtual lab -> ingest -> ... ; progress per stage)"
 	$(BIN)/dvc repro
 	@echo "== done: results under datasets/ (see README 'What the demo leaves')"
 
-test: setup
+test: setup system-deps
 	$(BIN)/python -m pytest -q -ra
 
 test-fast: setup

@@ -37,6 +37,8 @@ def main() -> int:
     ap.add_argument("--batches", type=int, default=80, help="batches per epoch")
     ap.add_argument("--batch-size", type=int, default=256)
     ap.add_argument("--repeats", type=int, default=2, help="interleaved bare/Lightning pairs")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="torch threads (default 1, as trainer.torch_threads; 0: torch's default)")
     args = ap.parse_args()
 
     import lightning.pytorch as pl
@@ -52,6 +54,8 @@ def main() -> int:
     from workbench.learn.windows import Normalisation
 
     _quiet_lightning()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     cfg = LearnConfig()
     seq_len, bs = cfg.data.seq_len, args.batch_size
     x, y, ends = _data(200_000, seq_len)

@@ -62,6 +62,8 @@ def setup_mlflow(tracking_uri: str | None = None, experiment: str | None = None)
             kwargs = {}
             if uri.startswith("sqlite:"):
                 kwargs["artifact_location"] = mlflow_artifact_root()
+            # MLflow 3's UI opens GenAI pages for experiments of unknown kind; ours are model training
+            kwargs["tags"] = {"mlflow.experimentKind": "custom_model_development"}
             try:
                 mlflow.create_experiment(experiment, **kwargs)
             except Exception:  # another process created it first

@@ -27,9 +27,9 @@ def grid(n_sets: int = 12) -> list[dict]:
 
 def campaign(root: Path, effects=(), truth: str = "ef", n_sets: int = 12, seed: int = SEED) -> Path:
     """A small virtual-lab tunnel campaign folder."""
-    from workbench.virtual_lab.tunnel import generate_tunnel
-
     import hashlib
+
+    from workbench.virtual_lab.tunnel import generate_tunnel
 
     name = "c-" + hashlib.sha1(repr((tuple(effects), truth, n_sets, seed)).encode()).hexdigest()[:10]
     return generate_tunnel(root / name, seed=seed, truth=truth, effects=list(effects), grid=grid(n_sets),

@@ -55,7 +55,7 @@ def _check(d, expected: dict, null):
     hit = added > 0.5 * base
     assert hit.any()
     removed = (before - after)[hit] / added[hit]
-    assert np.all(removed > 0.75), dict(zip(np.array(WRENCH_CHANNELS)[hit], removed.round(3)))
+    assert np.all(removed > 0.75), dict(zip(np.array(WRENCH_CHANNELS)[hit], removed.round(3), strict=False))
 
 
 @pytest.mark.parametrize("spec", list(SINGLES), ids=[s.split(":")[0] for s in SINGLES])

@@ -63,7 +63,7 @@ def test_augmented_model_is_a_leg_force_model_and_reproduces_mse_after(pair_diag
         w = loaded.wrench(m, time_s=r.time_s)[0]
         errs.append((r.measured - w)[r.fit])
     mse = (np.concatenate(errs) ** 2).mean(axis=0)
-    for c, v in zip(WRENCH_CHANNELS, mse):
+    for c, v in zip(WRENCH_CHANNELS, mse, strict=False):
         assert v == pytest.approx(d.mse_after[c], rel=1e-6)
     # the physical leg keeps the servo lag and drops the load cell's drift
     phys = loaded.physical()

@@ -32,7 +32,7 @@ def test_split_keeps_parameter_sets_together_and_survives_remeasuring():
     runs = [_run(f"r{i}{u}", _params(i), u) for i in range(20) for u in (0.0, 0.1, 0.2)]
     held = heldout_mask(runs, 0.3)
     by_set = {}
-    for r, h in zip(runs, held):
+    for r, h in zip(runs, held, strict=False):
         by_set.setdefault(r.params["theta_h_min_deg"], set()).add(bool(h))
     assert all(len(v) == 1 for v in by_set.values())          # all speeds of a set on one side
     assert 0 < held.sum() < len(runs)
@@ -40,8 +40,8 @@ def test_split_keeps_parameter_sets_together_and_survives_remeasuring():
     again = [_run(f"x{k}", {p: v + 1e-6 for p, v in r.params.items()}, r.flow_speed_mps)
              for k, r in enumerate(reversed(runs))]
     held2 = heldout_mask(again, 0.3)
-    assert {r.params["theta_h_min_deg"] for r, h in zip(runs, held) if h} == \
-        {round(r.params["theta_h_min_deg"], 3) for r, h in zip(again, held2) if h}
+    assert {r.params["theta_h_min_deg"] for r, h in zip(runs, held, strict=False) if h} == \
+        {round(r.params["theta_h_min_deg"], 3) for r, h in zip(again, held2, strict=False) if h}
 
 
 def test_library_composes_and_names_its_terms():
@@ -111,7 +111,7 @@ def test_weighted_least_squares_with_per_run_columns_matches_a_dense_solve():
     for c in range(6):
         scale = 1.0 if c == 1 else 0.0   # one channel holds everything
         g_list.append(np.array([scale * x.T @ x for x in xs]))
-        b_list.append(np.array([scale * x.T @ y for x, y in zip(xs, ys)]))
+        b_list.append(np.array([scale * x.T @ y for x, y in zip(xs, ys, strict=False)]))
     yy = np.zeros((nb, 6))
     yy[:, 1] = [y @ y for y in ys]
     gr = lsq.Grams(["a", "b", "c"], [np.arange(k)] * 6, g_list, b_list, yy, np.full(nb, 10), run,

@@ -59,11 +59,25 @@ def test_retained_gaits_resimulated_from_the_file_reproduce_their_objectives(rob
     np.testing.assert_allclose(f, recorded, rtol=1e-9, atol=1e-12)
 
 
-def test_retained_lstm_gaits_reproduce_with_tabulation(robot):
+def test_retained_lstm_gaits_carry_the_models_own_objectives(robot):
+    """A tabulated search: the kept gaits were swum again directly, and that is what the file records."""
+    from dataclasses import replace
+
+    from workbench.gait.tabulate import TabulationSettings
+
     model = small_lstm(hidden=16)
-    o = optimize_task(_config(STRAIGHT, pop=8, gens=2), "straight", model, robot, model_label="lstm", plots=False)
-    assert o.metrics["tabulation"]["kind"] == "window"
-    assert o.metrics["resim_max_rel_diff"] < 1e-6
+    cfg = replace(_config(STRAIGHT, pop=8, gens=2), verify_direct=8, retain=4)
+    o = optimize_task(cfg, "straight", model, robot, model_label="lstm", plots=False)
+    assert o.metrics["tabulation"]["kind"] == "window" and o.metrics["verified_direct"] == 8
+    assert max(o.metrics["verify_max_rel_diff"]) < 0.01
+    doc = json.loads(json.dumps(o.gait_doc))
+    gaits = GaitBatch.from_params([s["params"] for s in doc["solutions"]])
+    direct = GaitProblem(STRAIGHT, model, robot, tabulation=TabulationSettings(mode="never"))
+    recorded = np.array([[s["objectives"][k] for k in ("f1", "f2", "f3")] for s in doc["solutions"]])
+    np.testing.assert_allclose(direct.evaluate_gaits(gaits)[0], recorded, rtol=1e-5, atol=1e-7)
+    # without the direct check, the tabulated objectives come back as recorded
+    o2 = optimize_task(replace(cfg, verify_direct=0), "straight", model, robot, model_label="lstm", plots=False)
+    assert o2.metrics["resim_max_rel_diff"] < 1e-6
 
 
 def test_mirrored_gait_turns_the_other_way(robot):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 import pytest
-from conftest import PARAMS, RunPlan, wrench_truth
+from ingest_fixtures import PARAMS, RunPlan, wrench_truth
 
 from workbench.contract.columns import WRENCH_CHANNELS
 from workbench.hydro.motion import JointSinusoid

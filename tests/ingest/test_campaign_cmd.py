@@ -7,7 +7,7 @@ import sys
 
 import pytest
 import yaml
-from conftest import RunPlan, tree_hash, write_campaign
+from ingest_fixtures import RunPlan, tree_hash, write_campaign
 
 from workbench.cli import main
 from workbench.ingest.registry import load_registry

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import polars as pl
-from conftest import RunPlan
+from ingest_fixtures import RunPlan
 
 from workbench.cli import main
 from workbench.ingest import read_processed, read_provenance

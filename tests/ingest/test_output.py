@@ -12,7 +12,7 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from conftest import RunPlan
+from ingest_fixtures import RunPlan
 
 from workbench import __version__
 from workbench.cli import main

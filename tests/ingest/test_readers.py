@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import CALIBRATION, RunPlan
+from ingest_fixtures import CALIBRATION, RunPlan
 
 from workbench.contract.campaign import load_campaign
 from workbench.contract.columns import WRENCH_CHANNELS

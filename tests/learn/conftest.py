@@ -2,14 +2,8 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import pytest
-
-from learn_synthetic import make_frame
-
-CONFIG = Path(__file__).resolve().parents[2] / "pipelines" / "learn.yaml"
+from learn_helpers import make_frame
 
 
 @pytest.fixture(scope="session")
@@ -30,18 +24,6 @@ def parquet(tmp_path_factory, frame):
     return interp, measured
 
 
-def tiny_config(paths, root: Path, **over):
-    """The real pipelines/learn.yaml train section, shrunk to a few CPU batches, tracked in ``root``."""
-    from workbench.learn.config import load_config
-
-    base = {"data.paths": [str(p) for p in paths], "data.train_windows_per_epoch": 1536, "data.batch_size": 128,
-            "model.hidden_size": 16, "trainer.max_epochs": 2, "trainer.max_time_s": None,
-            "trainer.early_stop_patience": 0, "tracking.tracking_uri": f"sqlite:///{root / 'mlflow.db'}",
-            "model_dir": str(root / "datasets" / "models" / "fed-lstm")}
-    base.update(over)
-    return load_config(CONFIG).with_overrides(base)
-
-
 @pytest.fixture(scope="module")
 def project(tmp_path_factory):
     """An isolated project root (WORKBENCH_HOME) with its own MLflow store, for one test module."""
@@ -53,10 +35,3 @@ def project(tmp_path_factory):
         mp.delenv("WORKBENCH_LSTM_URI", raising=False)
         mp.delenv("DVC_STAGE", raising=False)
         yield root
-
-
-def subprocess_env(root: Path) -> dict:
-    """Environment of a fresh process in the isolated project."""
-    env = dict(os.environ)
-    env.update(WORKBENCH_HOME=str(root), MLFLOW_TRACKING_URI=f"sqlite:///{root / 'mlflow.db'}", MPLBACKEND="Agg")
-    return env

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import polars as pl
 import pytest
+from learn_helpers import make_frame
 
-from learn_synthetic import make_frame
 from workbench.errors import ContractError, DataError
 from workbench.learn.split import ParameterSplit, split_parameter_sets
 from workbench.learn.windows import fit_normalisation, read_table, table_from_frame, window_ends
@@ -110,3 +110,26 @@ def test_normalisation_is_fitted_on_training_runs_only(frame):
     import dataclasses
 
     assert fit_normalisation(dataclasses.replace(table, y=y), train) == norm
+
+
+def test_several_campaigns_share_parameter_sets(tmp_path):
+    a = make_frame(theta_h_min=(10.0, -30.0), theta_k_max=(-20.0, -60.0), speeds=(0.1,), cycles=1.0, campaign_id="a")
+    b = make_frame(theta_h_min=(10.0, -50.0), theta_k_max=(-20.0, -60.0), speeds=(0.2,), cycles=1.0, campaign_id="b")
+    a.write_parquet(tmp_path / "a.parquet")
+    b.drop("alpha_rad").write_parquet(tmp_path / "b.parquet")  # alpha_rad is optional (default 0)
+    table = read_table([tmp_path / "a.parquet", tmp_path / "b.parquet"])
+    assert table.n_runs == 8 and table.campaigns() == ["a", "b"]
+    sp = split_parameter_sets(table, seed=0)
+    assert len(sp.assignment) == 6  # (10, -20) and (10, -60) are measured in both campaigns: one set each
+    for r in range(table.n_runs):
+        assert sp.split_of({c: table.runs[c][r] for c in table.param_columns}) in ("train", "val", "test")
+
+
+def test_a_folder_stands_for_its_parquet_files(tmp_path, parquet):
+    import shutil
+
+    shutil.copy(parquet[0], tmp_path / "one.parquet")
+    assert read_table([tmp_path]).n_runs == read_table([parquet[0]]).n_runs
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ContractError, match="no .parquet files"):
+        read_table([tmp_path / "empty"])

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from learn_helpers import tiny_config
 
-from conftest import tiny_config
 from workbench.hydro.motion import JointSinusoid, LegMotion
 
 

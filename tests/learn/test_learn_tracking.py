@@ -8,8 +8,8 @@ import sys
 
 import numpy as np
 import pytest
+from learn_helpers import CONFIG, subprocess_env
 
-from conftest import CONFIG, subprocess_env
 from workbench.cli import main
 
 SHRINK = ["data.train_windows_per_epoch=1536", "data.batch_size=128", "model.hidden_size=16", "trainer.max_epochs=2",

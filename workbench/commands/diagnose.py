@@ -25,12 +25,20 @@ def register(sub) -> None:
   workbench diagnose --campaign datasets/raw/tunnel-2025-03 --model augmented:datasets/diagnosis/demo-tunnel-ef \\
       --out /tmp/second-pass                       # diagnose an already augmented model again
   workbench diagnose --campaign /tmp/vl --model ef --out /tmp/d --effects servo_lag,sensor_drift --no-mlflow
+  workbench diagnose --trials datasets/scores/demo-pool --gaits datasets/gaits --model ef --out /tmp/traj
   workbench virtual-lab tunnel /tmp/vl --truth ef --effect servo_lag:tau_s=0.04 && \\
       workbench diagnose --campaign /tmp/vl --model ef --out /tmp/vl-diag   # does it find the planted lag?
 """)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--campaign", metavar="DIR", help="water-tunnel campaign folder (ingested on the fly)")
     src.add_argument("--processed", metavar="FILE", help="processed Parquet file of a tunnel campaign")
+    src.add_argument("--trials", metavar="SCORES_DIR",
+                     help="trajectory level: a score-trials output folder (scores.csv + trajectories/); the trials "
+                     "are swum again in the simulator with --gaits and --model")
+    p.add_argument("--gaits", default="datasets/gaits", metavar="DIR",
+                   help="with --trials: folder of <task>-<model>.json gait files (default: datasets/gaits)")
+    p.add_argument("--robot", default="pipelines/robot.yaml", metavar="YAML",
+                   help="with --trials: robot constants for the simulator (default: pipelines/robot.yaml)")
     p.add_argument("--model", default="ef", metavar="MODEL",
                    help="leg force model: ef, lstm, models:/NAME@ALIAS, augmented:DIR or a saved augmented "
                    "model's path (default: ef)")
@@ -96,7 +104,7 @@ def _readable(folder) -> None:
 
     mask = os.umask(0)
     os.umask(mask)
-    for root, dirs, files in os.walk(folder):
+    for root, _dirs, files in os.walk(folder):
         os.chmod(root, 0o777 & ~mask)
         for f in files:
             os.chmod(os.path.join(root, f), 0o666 & ~mask)
@@ -116,6 +124,8 @@ def run(args) -> int:
     from workbench.hydro.legmodel import load_leg_model
 
     t0 = time.perf_counter()
+    if args.trials:
+        return _run_trajectories(args, t0)
     try:
         settings = DiagnoseSettings.from_mapping(_section(args.params, "pipelines/diagnose.yaml", "diagnose"))
     except TypeError as exc:
@@ -154,4 +164,49 @@ def run(args) -> int:
 
         log_diagnosis(d, out, args.tracking_uri)
     info(f"wrote {out}/diagnosis.json, augmented_model.json, report.md ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def _run_trajectories(args, t0: float) -> int:
+    """Trajectory level: simulate the tracked trials, fit trajectory effects, write trajectory_diagnosis.json."""
+    import time
+    from pathlib import Path
+
+    from workbench.atomic import atomic_dir, write_json
+    from workbench.console import info
+    from workbench.diagnose.augmented import AugmentedLegModel
+    from workbench.diagnose.report import fig_trajectories
+    from workbench.diagnose.trajectory import (
+        TrajectorySettings,
+        diagnose_trajectories,
+        read_tracks,
+        simulate_tracks,
+    )
+    from workbench.hydro.legmodel import load_leg_model
+    from workbench.hydro.robot import RobotParams, load_robot
+
+    section = _section(args.params, "pipelines/diagnose.yaml", "diagnose") or {}
+    traj = dict(section.get("trajectory") or {})
+    if "yaw_bounds_dps" in traj:
+        traj["yaw_bounds_dps"] = tuple(traj["yaw_bounds_dps"])
+    settings = TrajectorySettings(**traj)
+    model = load_leg_model(args.model)
+    if isinstance(model, AugmentedLegModel):
+        model = model.physical()     # a swimming robot meets no tunnel blockage and no load-cell drift
+    robot = load_robot(args.robot) if Path(args.robot).is_file() else RobotParams()
+    tracks = read_tracks(args.trials)
+    info(f"trajectory diagnosis of {args.model}: {len(tracks)} trials, simulating their gaits")
+    sims = simulate_tracks(tracks, args.gaits, model, robot, settings)
+    d = diagnose_trajectories(tracks, sims, args.model, settings)
+    doc = d.to_json()
+    doc["source"] = str(args.trials)
+    with atomic_dir(Path(args.out)) as tmp:
+        write_json(tmp / "trajectory_diagnosis.json", doc)
+        fig_trajectories(tracks, sims, d, tmp / "trajectories.png")
+        _readable(tmp)
+    for e in d.effects:
+        info(f"  effect {e['name']}: {e['params']} (left-out error -{e['cv_error_reduction']:.0%})")
+    rms = doc["rms_position_error_m"]
+    info(f"  RMS position error {rms['before']:.3f} m -> {rms['after']:.3f} m")
+    info(f"wrote {args.out}/trajectory_diagnosis.json ({time.perf_counter() - t0:.1f} s)")
     return 0

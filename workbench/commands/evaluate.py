@@ -28,7 +28,8 @@ def register(sub) -> None:
                              "JSON metrics file (contract section 5). With --figures, also the paper's prediction "
                              "curves (Fig. 4) and the MSE box plot by flow speed (Fig. 5) as PNG. Logged to MLflow.",
                  examples=EXAMPLES)
-    p.add_argument("--data", nargs="+", required=True, metavar="PARQUET", help="processed tunnel Parquet file(s)")
+    p.add_argument("--data", nargs="+", required=True, metavar="PARQUET",
+                   help="processed tunnel Parquet file(s) or folder(s) of them; interpolated rows are ignored")
     p.add_argument("--split", required=True, help="split.json written by workbench train (model folder)")
     p.add_argument("--out", required=True, help="metrics JSON to write, e.g. datasets/metrics/leg_models.json")
     p.add_argument("--figures", metavar="DIR", help="write the PNG figures here")

@@ -437,32 +437,42 @@ def _near_harmonic(f: float, gait_hz: float, tol_hz: float) -> bool:
     return abs(f - k * gait_hz) <= tol_hz
 
 
-def line_scan(runs: list[RunResidual], parts: list[np.ndarray], settings: EvidenceSettings, step_hz: float = 0.02):
-    """Periodogram of each run's remainder at a fine frequency grid (full-run resolution), summed over runs.
+def _scan_grid(dt_s: float, stride: int, step_hz: float, n_max: int) -> tuple[int, float]:
+    """FFT length giving bins at most ``step_hz`` apart for every run, and the sampling rate."""
+    fs = 1.0 / (dt_s * stride)
+    nfft = 1 << int(np.ceil(np.log2(max(fs / step_hz, n_max, 8))))
+    return nfft, fs
 
-    Each run contributes ``|sum e(t) exp(-i w t)|^2 / N`` per channel (a fitted sinusoid's gain per
-    sample), so a line keeps the resolution 1/T of the whole run, finer than a Welch segment.
-    Returns ``(freqs, scan (F, 6), dof)``.
+
+def line_scan(runs: list[RunResidual], parts: list[np.ndarray], settings: EvidenceSettings, step_hz: float = 0.02):
+    """Periodogram of each run's remainder on a fine frequency grid (full-run resolution), summed over runs.
+
+    Each run contributes ``|sum e(t) w(t) exp(-i 2 pi f t)|^2 / sum w^2`` per channel (Hann taper
+    ``w``: a strong line's sidelobes, -31 dB, do not pose as lines of their own), so a line keeps
+    the resolution 1/T of the whole run, finer than a Welch segment. Zero-padded FFTs at every
+    third tick (far above the low-pass cutoff). Returns ``(freqs, scan (F, 6), dof)``.
     """
-    freqs = np.arange(settings.fmin_hz, settings.fmax_hz + 1e-9, step_hz)
-    total = np.zeros((len(freqs), 6))
+    stride = 3
+    lengths = [len(p[::stride]) for p in parts]
+    nfft, fs = _scan_grid(runs[0].dt_s, stride, step_hz, max(lengths, default=8))
+    freqs = np.fft.rfftfreq(nfft, 1 / fs)
+    band = (freqs >= settings.fmin_hz) & (freqs <= settings.fmax_hz)
+    total = np.zeros((int(band.sum()), 6))
     scales = []
-    for run, e in zip(runs, parts):
-        t = run.time_s[run.fit][::2]
-        if len(t) < 8:
+    for _run, e in zip(runs, parts, strict=False):
+        x = e[::stride]
+        if len(x) < 8:
             continue
-        # a Hann taper keeps a strong line's sidelobes (-31 dB) from posing as lines of their own
-        taper = np.hanning(len(t) + 2)[1:-1]
-        x = e[::2] * taper[:, None]
-        ph = 2 * np.pi * np.outer(t, freqs)
-        p = ((x.T @ np.sin(ph)) ** 2 + (x.T @ np.cos(ph)) ** 2).T / (taper ** 2).sum()
+        taper = np.hanning(len(x) + 2)[1:-1]
+        spec = np.fft.rfft(x * taper[:, None], n=nfft, axis=0)[band]
+        p = np.abs(spec) ** 2 / (taper ** 2).sum()
         total += p
         scales.append(np.median(p, axis=0))
     if not scales:
-        return freqs, total, 2.0
+        return freqs[band], total, 2.0
     sc = np.asarray(scales)
     dof = float(np.min(2.0 * sc.sum(axis=0) ** 2 / np.maximum((sc ** 2).sum(axis=0), 1e-300)))
-    return freqs, total, dof
+    return freqs[band], total, dof
 
 
 def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0) -> list[Peak]:
@@ -561,8 +571,12 @@ def tone_scan(runs: list[RunResidual], gains: list[np.ndarray], weights: np.ndar
     Returns ``(freqs, scan, dof)``: the summed gain per frequency and its chi-square degrees of freedom.
     """
     s = settings or EvidenceSettings()
-    freqs = np.arange(s.fmin_hz, s.fmax_hz + 1e-9, step_hz)
-    total = np.zeros(len(freqs))
+    stride = 2   # the scan needs the gain's Fourier sum at twice the frequency
+    lengths = [int(r.fit.sum()) // stride + 1 for r in runs]
+    nfft, fs = _scan_grid(runs[0].dt_s, stride, step_hz, max(lengths, default=8))
+    freqs = np.fft.rfftfreq(nfft, 1 / fs)
+    band = np.flatnonzero((freqs >= s.fmin_hz) & (freqs <= s.fmax_hz) & (2 * freqs < fs / 2))
+    total = np.zeros(len(band))
     scales = []
     for run, g in zip(runs, gains, strict=False):
         gg = g[run.fit]
@@ -570,24 +584,24 @@ def tone_scan(runs: list[RunResidual], gains: list[np.ndarray], weights: np.ndar
             continue
         e = run.resid[run.fit]
         e = e - e.mean(axis=0) - gait_locked(run, cutoff_hz)
-        # every other tick is plenty below the low-pass cutoff
-        t = run.time_s[run.fit][::2]
-        taper = np.hanning(len(t) + 2)[1:-1]      # tapered (weighted) least squares: low sidelobes
-        z = (weights * gg * e).sum(axis=1)[::2] * taper
-        big = (weights * gg * gg).sum(axis=1)[::2] * taper
-        ph = 2 * np.pi * np.outer(t, freqs)
-        sn, cs = np.sin(ph), np.cos(ph)
-        b1, b2 = z @ sn, z @ cs
-        a11, a22, a12 = big @ (sn * sn), big @ (cs * cs), big @ (sn * cs)
+        z = (weights * gg * e).sum(axis=1)[::stride]
+        big = (weights * gg * gg).sum(axis=1)[::stride]
+        taper = np.hanning(len(z) + 2)[1:-1]      # tapered (weighted) least squares: low sidelobes
+        zf = np.fft.rfft(z * taper, n=nfft)
+        gf = np.fft.rfft(big * taper, n=nfft)
+        s0 = float((big * taper).sum())
+        b1, b2 = -zf.imag[band], zf.real[band]                  # sum z sin, sum z cos
+        c2, s2 = gf.real[2 * band], -gf.imag[2 * band]          # sum G cos 2wt, sum G sin 2wt
+        a11, a22, a12 = (s0 - c2) / 2, (s0 + c2) / 2, s2 / 2
         det = np.maximum(a11 * a22 - a12 ** 2, 1e-300)
         gain = (a22 * b1 ** 2 - 2 * a12 * b1 * b2 + a11 * b2 ** 2) / det
         total += gain
         scales.append(np.median(gain))
     if not scales:
-        return freqs, total, 2.0
+        return freqs[band], total, 2.0
     sc = np.asarray(scales)
     dof = 2.0 * sc.sum() ** 2 / max((sc ** 2).sum(), 1e-300)
-    return freqs, total, dof
+    return freqs[band], total, dof
 
 
 def flow_tone_peaks(runs: list[RunResidual], gains: list[np.ndarray], weights: np.ndarray,

@@ -73,6 +73,8 @@ class DiagnoseSettings:
         values = dict(values or {})
         sections = {"data": DataSettings, "fit": FitSettings, "selection": SelectionSettings,
                     "evidence": EvidenceSettings, "library": LibrarySettings, "report": ReportSettings}
+        # the trajectory level reads its own section (workbench.diagnose.trajectory.TrajectorySettings)
+        values.pop("trajectory", None)
         known = set(sections) | {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:

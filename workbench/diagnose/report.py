@@ -180,6 +180,35 @@ def fig_effect(d, eff, path: Path) -> None:
     plt.close(fig)
 
 
+def fig_trajectories(tracks, sims, d, path: Path) -> None:
+    """Tracked paths against the simulated ones, before and after the trajectory effects (trial frames)."""
+    from workbench.diagnose.trajectory import apply_effects
+
+    plt = _plt()
+    n = len(tracks)
+    cols = min(n, 4)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.6 * rows), squeeze=False)
+    p = d.params
+    for ax, tr, sim in zip(axes.ravel(), tracks, sims, strict=False):
+        before, _ = apply_effects(sim, tr.t_s, tr.frame_angle_rad)
+        after, _ = apply_effects(sim, tr.t_s, tr.frame_angle_rad, p.get("yaw_rate_rps", 0.0),
+                                 p.get("current_mps", (0.0, 0.0)))
+        ax.plot(tr.xy_m[:, 0], tr.xy_m[:, 1], color="0.2", lw=1.4, label="tracked")
+        ax.plot(before[:, 0], before[:, 1], color="tab:red", lw=1, label="simulated")
+        ax.plot(after[:, 0], after[:, 1], color="tab:blue", lw=1, ls="--", label="+ effects")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(f"{tr.trial_id} ({tr.model}, {tr.task})", fontsize=8)
+        ax.set_xlabel("X (m)")
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle("Trials in their own frame: tracked, simulated, simulated with the trajectory effects")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def _fmt(v) -> str:
     if v is None:
         return "-"

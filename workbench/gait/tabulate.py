@@ -147,7 +147,8 @@ class CycleTable:
         self.g_lo = 0
         self.values = np.zeros((len(shapes), 0, self.n_j, self.n_ch))
         self.done = np.zeros((len(shapes), 0), bool)
-        self.fine = np.zeros((len(shapes), 0, (self.n_j - 3) * self.rp + 1, self.n_ch))
+        #: float32: it is read four times per leg and tick in every fixed-point iteration
+        self.fine = np.zeros((len(shapes), 0, (self.n_j - 3) * self.rp + 1, self.n_ch), np.float32)
         self.model_time_s = 0.0
 
     @property
@@ -158,17 +159,20 @@ class CycleTable:
     def ensure(self, lo: np.ndarray, hi: np.ndarray) -> bool:
         """Make nodes lo[s] .. hi[s] (integers, inclusive) of every shape s available; True if any was new."""
         g_hi_now = self.g_lo + self.n_nodes - 1
-        g_lo = int(lo.min()) if not self.n_nodes else min(int(lo.min()), self.g_lo)
-        g_hi = int(hi.max()) if not self.n_nodes else max(int(hi.max()), g_hi_now)
-        if not self.n_nodes or g_lo < self.g_lo or g_hi > g_hi_now:
+        if not self.n_nodes or lo.min() < self.g_lo or hi.max() > g_hi_now:
+            # grow the grid with a node of margin on the growing side (fewer re-allocations)
+            g_lo = int(lo.min()) - 1 if not self.n_nodes or lo.min() < self.g_lo else self.g_lo
+            g_hi = int(hi.max()) + 1 if not self.n_nodes or hi.max() > g_hi_now else g_hi_now
             size = g_hi - g_lo + 1
             values = np.zeros((len(self.shapes), size, self.n_j, self.n_ch))
             done = np.zeros((len(self.shapes), size), bool)
-            a = self.g_lo - g_lo
+            fine = np.zeros((len(self.shapes), (size - 1) * self.rf + 1, self.fine.shape[2], self.n_ch), np.float32)
             if self.n_nodes:
+                a = self.g_lo - g_lo
                 values[:, a:a + self.n_nodes] = self.values
                 done[:, a:a + self.n_nodes] = self.done
-            self.values, self.done, self.g_lo = values, done, g_lo
+                fine[:, a * self.rf:a * self.rf + self.fine.shape[1]] = self.fine
+            self.values, self.done, self.fine, self.g_lo = values, done, fine, g_lo
         nodes = np.arange(self.n_nodes) + self.g_lo
         want = (nodes[None, :] >= lo[:, None]) & (nodes[None, :] <= hi[:, None]) & ~self.done
         s_idx, g_idx = np.nonzero(want)
@@ -179,16 +183,23 @@ class CycleTable:
         self.model_time_s += time.perf_counter() - t0
         self.values[s_idx, g_idx] = out
         self.done[s_idx, g_idx] = True
-        self._refine()
+        self._refine(np.unique(s_idx), int(g_idx.min()), int(g_idx.max()))
         return True
 
-    def _refine(self) -> None:
-        """Fine grid from the coarse samples (separable Catmull-Rom or linear), for bilinear reads."""
+    def _refine(self, rows: np.ndarray, i_lo: int, i_hi: int) -> None:
+        """Fine grid of some shapes around new nodes i_lo .. i_hi (grid indices), from the coarse samples.
+
+        Separable Catmull-Rom (or linear): a node changes the fine values up to two intervals away.
+        Fine values between nodes that are not made yet are meaningless; reads never reach them.
+        """
         interp = self.settings.interpolation
+        n = self.n_nodes
+        f_lo, f_hi = max(0, i_lo - 2), min(n - 1, i_hi + 2)           # fine values to redo, node units
+        c_lo, c_hi = max(0, f_lo - 1), min(n - 1, f_hi + 2)           # coarse nodes they depend on
         pos_j = 1.0 + np.arange((self.n_j - 3) * self.rp + 1) / self.rp
-        by_phase = _resample(self.values, 2, pos_j, interp)
-        pos_g = np.arange((self.n_nodes - 1) * self.rf + 1) / self.rf
-        self.fine = np.ascontiguousarray(_resample(by_phase, 1, pos_g, interp))
+        by_phase = _resample(self.values[rows, c_lo:c_hi + 1], 2, pos_j, interp)
+        k = np.arange(f_lo * self.rf, f_hi * self.rf + 1)
+        self.fine[rows[:, None], k[None, :]] = _resample(by_phase, 1, k / self.rf - c_lo, interp)
 
     def read(self, s_of_leg: np.ndarray, m0: np.ndarray, tp: np.ndarray, flow: np.ndarray) -> np.ndarray:
         """Bilinear read (N, T, channels) at fine phase positions (m0 + tp) and flows ``flow`` (N, T)."""
@@ -199,7 +210,7 @@ class CycleTable:
         flat = self.fine.reshape(-1, self.n_ch)
         base = (s_of_leg[:, None] * n_gf + k0) * n_jf + m0
         tpc = tp[..., None]
-        out = np.take(flat, base, axis=0) * ((1 - tpc) * (1 - tf))
+        out = np.take(flat, base, axis=0) * ((1 - tpc) * (1 - tf))                  # float64 from here
         out += np.take(flat, base + 1, axis=0) * (tpc * (1 - tf))
         out += np.take(flat, base + n_jf, axis=0) * ((1 - tpc) * tf)
         out += np.take(flat, base + n_jf + 1, axis=0) * (tpc * tf)

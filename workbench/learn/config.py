@@ -238,7 +238,8 @@ def add_common_options(p, *, data_required: bool = False) -> None:
     """``--config``, ``--data``, ``--set``, ``--tracking-uri``, ``--experiment``, ``--no-mlflow``, ``--dvc-stage``."""
     p.add_argument("--config", default="pipelines/learn.yaml", help="learning parameter file (default: %(default)s)")
     p.add_argument("--data", nargs="+", metavar="PARQUET", required=data_required,
-                   help="processed tunnel Parquet file(s), one or more campaigns (contract section 3)")
+                   help="processed tunnel Parquet file(s) or folder(s) of them, one or more campaigns "
+                        "(contract section 3)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a key of the file's train section, e.g. --set model.variant=gru (repeatable)")
     p.add_argument("--tracking-uri", help="MLflow tracking URI (default: MLFLOW_TRACKING_URI, else sqlite:///mlflow.db "

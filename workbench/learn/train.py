@@ -67,12 +67,13 @@ def default_run_name(cfg: LearnConfig) -> str:
 
 def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: Callable[[str], None] | None = None,
           parent_run_id: str | None = None, extra_tags: dict | None = None, kind: str = "train",
-          log_model: bool = True) -> tuple[dict, dict]:
+          log_model: bool = True, score_test: bool = True) -> tuple[dict, dict]:
     """Train one configuration; returns ``(metrics, objects)``.
 
     ``prepared``: a :class:`~workbench.learn.datamodule.PreparedData` to reuse (else read
     ``cfg.data.paths``); ``callbacks``: extra Lightning callbacks (e.g. Optuna pruning);
-    ``report``: where per-epoch lines go; ``parent_run_id``: MLflow parent (tune trials).
+    ``report``: where per-epoch lines go; ``parent_run_id``: MLflow parent (tune trials);
+    ``score_test``: score on the held-out test sets (a search leaves them alone).
     ``objects`` holds ``model`` (the :class:`LegForceModel`), ``module``, ``datamodule``,
     ``prepared``, ``history`` and, when tracked, ``run_id`` and ``model_version``.
     """
@@ -143,7 +144,7 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
         metrics.update({"best_val_loss": best.best, "best_epoch": best.best_epoch, "epochs": len(log.history),
                         "fit_s": fit_s, "total_s": time.perf_counter() - t_start,
                         "train_windows_per_s": sorted(wps)[len(wps) // 2] if wps else float("nan")})
-        test_runs = prepared.runs("test")
+        test_runs = prepared.runs("test") if score_test else []
         if len(test_runs):
             scored = score_runs(prepared.table, test_runs, {"lstm": model, "ef": EmpiricalFormula()},
                                 skip=cfg.data.seq_len - 1)

@@ -7,7 +7,8 @@ processes on one machine), or any Optuna storage URL (``postgresql://...`` for a
 ``workers`` processes (``python -m workbench.learn.tune --worker SPEC``), each taking an exact
 share of ``n_trials`` so that no trial is lost or run twice; running the same command on another
 machine against the same storage adds its trials to the same study. Each trial is one
-``train(cfg)`` call with fewer epochs and windows, a child MLflow run (pruned trials end KILLED),
+``train(cfg)`` call with fewer epochs and windows and no test scoring, a child MLflow run (pruned
+trials end KILLED),
 pruned on the validation loss by Optuna's median rule after ``n_warmup_steps`` epochs. The best
 trial (lowest validation loss, never the test score) has its logged model registered under
 the ``tuned`` alias; its parameters go to ``best.json`` as ``--set`` overrides for ``workbench train``.
@@ -122,7 +123,7 @@ def _prepared(base: LearnConfig, need_ef: bool):
     return _CACHE[key]
 
 
-def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run_id: str | None):
+def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run_id: str | None, worker: int = 0):
     """The Optuna objective: train one trial configuration, return its best validation loss."""
     from optuna_integration import PyTorchLightningPruningCallback
 
@@ -136,13 +137,11 @@ def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run
         cfg = trial_config(base, tune, params, study_name, trial.number)
         metrics, objects = train(cfg, prepared=_prepared(base, need_ef),
                                  callbacks=[PyTorchLightningPruningCallback(trial, monitor="val_loss")],
-                                 parent_run_id=parent_run_id, kind="trial",
-                                 extra_tags={"study": study_name, "trial": trial.number})
+                                 parent_run_id=parent_run_id, kind="trial", score_test=False,
+                                 extra_tags={"study": study_name, "trial": trial.number, "worker": worker})
         if "run_id" in objects:
             trial.set_user_attr("mlflow_run_id", objects["run_id"])
         trial.set_user_attr("epochs", metrics["epochs"])
-        if "test_nmse" in metrics:
-            trial.set_user_attr("test_nmse", metrics["test_nmse"])
         return float(metrics["best_val_loss"])
 
     return objective
@@ -159,8 +158,11 @@ def _progress_callback(total: int, baseline: set[int], report: Callable[[str], N
         complete = [t for t in trials if t.state == optuna.trial.TrialState.COMPLETE]
         best = min(complete, key=lambda t: t.value) if complete else None
         state = trial.state.name.lower()
-        value = f"val {trial.value:.4f}" if trial.value is not None else \
-            f"at epoch {max(trial.intermediate_values) + 1}" if trial.intermediate_values else ""
+        if trial.state == optuna.trial.TrialState.PRUNED and trial.intermediate_values:
+            last = max(trial.intermediate_values)
+            value = f"at epoch {last + 1} (val {trial.intermediate_values[last]:.4f})"
+        else:
+            value = f"val {trial.value:.4f}" if trial.value is not None else ""
         params = ", ".join(f"{k}={_fmt(v)}" for k, v in trial.params.items())
         best_s = f"best {best.value:.4f} (trial {best.number})" if best else "no complete trial yet"
         report(f"trial {done}/{total}{tag}: #{trial.number} {state} {value} [{params}]  {best_s}")
@@ -200,7 +202,7 @@ def run_worker(spec: Mapping[str, Any], report: Callable[[str], None] | None = N
     study = optuna.load_study(study_name=spec["study"], storage=storage, sampler=sampler, pruner=pruner)
     if spec.get("tracking_uri"):
         os.environ["MLFLOW_TRACKING_URI"] = spec["tracking_uri"]
-    objective = make_objective(base, tune, spec["study"], spec.get("parent_run_id"))
+    objective = make_objective(base, tune, spec["study"], spec.get("parent_run_id"), int(spec["worker"]))
     tag = f" [worker {spec['worker']}]" if spec.get("n_workers", 1) > 1 else ""
     cbs = [_progress_callback(spec["total"], set(spec["baseline"]), report, tag)] if report else []
     study.optimize(objective, n_trials=int(spec["n_trials"]), catch=(Exception,), callbacks=cbs,
@@ -270,8 +272,10 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
 def _campaigns(base: LearnConfig) -> list[str]:
     import polars as pl
 
+    from workbench.learn.windows import expand_paths
+
     ids: list[str] = []
-    for p in base.data.paths:
+    for p in expand_paths(base.data.paths):
         try:
             ids += pl.scan_parquet(p).select(pl.col("campaign_id").unique()).collect()["campaign_id"].to_list()
         except Exception:  # noqa: BLE001 - the workers report a bad file properly
@@ -326,7 +330,7 @@ def summarise(study, baseline: set[int], elapsed_s: float = 0.0) -> dict:
     if best is not None:
         over = [f"{PARAM_KEYS.get(k, k)}={v}" for k, v in best.params.items()]
         best_d = {"number": best.number, "value": best.value, "params": best.params, "overrides": over,
-                  "mlflow_run_id": best.user_attrs.get("mlflow_run_id"), "test_nmse": best.user_attrs.get("test_nmse")}
+                  "mlflow_run_id": best.user_attrs.get("mlflow_run_id")}
     return {"study": study.study_name, "n_trials_total": len(trials), "n_trials_this_run": len(mine),
             "counts": counts, "best": best_d, "first_failure": fails[0] if fails else None,
             "elapsed_s": elapsed_s, "trials": rows}

@@ -79,19 +79,33 @@ def set_label(params: dict) -> str:
     return " ".join(parts)
 
 
+def expand_paths(paths: Sequence[str | Path]) -> list[Path]:
+    """Files named, with a folder standing for its ``*.parquet`` files (sorted), e.g. ``datasets/processed/interp``."""
+    if not paths:
+        raise ContractError("no processed data given", hint="pass --data datasets/processed/<campaign>.parquet")
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found = sorted(p.glob("*.parquet"))
+            if not found:
+                raise ContractError("no .parquet files in the folder", path=p)
+            out += found
+        else:
+            out.append(p)
+    return out
+
+
 def read_table(paths: Sequence[str | Path]) -> RunTable:
-    """Read processed tunnel Parquet files (contract section 3) into a :class:`RunTable`.
+    """Read processed tunnel Parquet files or folders of them (contract section 3) into a :class:`RunTable`.
 
     Only the needed columns are read, once, straight into float32 arrays: a paper-scale
     campaign (3 M ticks) costs about 130 MB, held once.
     """
     import polars as pl
 
-    if not paths:
-        raise ContractError("no processed data given", hint="pass --data datasets/processed/<campaign>.parquet")
+    files = expand_paths(paths)
     frames = []
-    for p in paths:
-        p = Path(p)
+    for p in files:
         if not p.is_file():
             raise ContractError("processed data file not found", path=p)
         try:

@@ -1,31 +1,31 @@
-"""A small processed-format tunnel dataset from JointSinusoid and a known truth model (EF + memory).
+"""Helpers of the learn tests: a small processed-format tunnel dataset, the real config shrunk, subprocess env.
 
-Stands in for ingest output in unit tests: the columns of data contract section 3, one row per
-65 Hz control tick, the truth = EF wrench passed through a first-order lag plus an fx
-component and noise, so a sequence model has something the memoryless EF cannot capture.
+The dataset stands in for ingest output in unit tests: the columns of data contract section 3,
+one row per 65 Hz control tick of a JointSinusoid motion, the wrench from the virtual lab's
+ground truth (``TrueLegModel("rich")``: added mass growing with KC, Wagner lag, link drag,
+weight and buoyancy, ...) plus noise, so a sequence model has something the EF cannot capture.
 """
 
 from __future__ import annotations
 
 import itertools
+import os
+from pathlib import Path
 
 import numpy as np
 import polars as pl
-from scipy.signal import lfilter
 
 from workbench.contract.columns import WRENCH_CHANNELS
-from workbench.hydro.ef import EmpiricalFormula
 from workbench.hydro.motion import JointSinusoid
+from workbench.virtual_lab.physics import TrueLegModel
 
 RATE_HZ = 65.0
+CONFIG = Path(__file__).resolve().parents[2] / "pipelines" / "learn.yaml"
 
 
-def truth_wrench(motion, tau_s: float = 0.08, noise: float = 0.0, rng=None) -> np.ndarray:
-    w = EmpiricalFormula().wrench(motion)[0]
-    a = np.exp(-motion.dt_s / tau_s)
-    lagged = lfilter([1 - a], [1, -a], w, axis=0)
-    out = 1.2 * lagged
-    out[:, 0] = 0.4 * lagged[:, 1] + 0.02
+def truth_wrench(motion, noise: float = 0.0, rng=None) -> np.ndarray:
+    """The virtual lab's ground truth (richer than the EF) plus load-cell-like noise."""
+    out = TrueLegModel("rich").wrench(motion)[0]
     if noise and rng is not None:
         out = out + rng.normal(0, noise, out.shape) * np.array([1, 1, 1, 0.02, 0.02, 0.02])
     return out
@@ -54,3 +54,22 @@ def make_frame(theta_h_min=(10.0, -10.0, -30.0, -50.0), theta_k_max=(-20.0, -40.
             parts.append(pl.DataFrame({c: np.broadcast_to(v, t.shape) if np.ndim(v) == 0 else v
                                        for c, v in cols.items()}))
     return pl.concat(parts)
+
+
+def tiny_config(paths, root: Path, **over):
+    """The real pipelines/learn.yaml train section, shrunk to a few CPU batches, tracked in ``root``."""
+    from workbench.learn.config import load_config
+
+    base = {"data.paths": [str(p) for p in paths], "data.train_windows_per_epoch": 1536, "data.batch_size": 128,
+            "model.hidden_size": 16, "trainer.max_epochs": 2, "trainer.max_time_s": None,
+            "trainer.early_stop_patience": 0, "tracking.tracking_uri": f"sqlite:///{root / 'mlflow.db'}",
+            "model_dir": str(root / "datasets" / "models" / "fed-lstm")}
+    base.update(over)
+    return load_config(CONFIG).with_overrides(base)
+
+
+def subprocess_env(root: Path) -> dict:
+    """Environment of a fresh process in the isolated project."""
+    env = dict(os.environ)
+    env.update(WORKBENCH_HOME=str(root), MLFLOW_TRACKING_URI=f"sqlite:///{root / 'mlflow.db'}", MPLBACKEND="Agg")
+    return env

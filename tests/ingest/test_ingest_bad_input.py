@@ -8,7 +8,7 @@ import json
 import numpy as np
 import polars as pl
 import pytest
-from conftest import RunPlan, tree_hash
+from ingest_fixtures import RunPlan, tree_hash
 
 from workbench.cli import main
 from workbench.ingest import quality_path, read_provenance
@@ -195,7 +195,7 @@ def test_corrupt_mcap(campaign, capsys, tmp_path, damage):
 
 
 def test_mcap_missing_topic(campaign, capsys, tmp_path):
-    from conftest import write_mcap
+    from ingest_fixtures import write_mcap
 
     root = campaign([RunPlan("r1", form="mcap")])
     write_mcap(root / "runs/r1.mcap", {"time_s": [0.0, 0.002, 0.004], **{c: [0.0] * 3 for c in
