@@ -39,7 +39,7 @@ def _well_conditioned(traj, margin=0.01, window_s=0.5):
         progress = traj.y_m if spec.task == "straight" else np.abs(traj.yaw_rad)
         target = spec.finish_distance_m if spec.task == "straight" else np.radians(spec.target_yaw_deg)
 
-        def first(level):
+        def first(level, progress=progress):
             hit = progress >= level
             return np.where(hit.any(axis=1), traj.t_s[hit.argmax(axis=1)], np.inf)
 

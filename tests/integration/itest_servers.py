@@ -43,10 +43,15 @@ def postgres_server(workdir: Path):
     bindir = pg_bin()
     if bindir is None:
         raise RuntimeError("PostgreSQL server binaries not found (apt-get install postgresql)")
-    data = workdir / "pgdata"
-    sock = workdir / "pgsock"
-    data.mkdir(parents=True)
+    # the server runs as 'postgres', which cannot enter pytest's root-only temp folders: use /tmp
+    import tempfile
+
+    own = Path(tempfile.mkdtemp(prefix="wb-pg-"))
+    data = own / "pgdata"
+    sock = own / "pgsock"
+    data.mkdir()
     sock.mkdir()
+    workdir = own
     if os.geteuid() == 0:
         pw = pwd.getpwnam("postgres")
         for p in (workdir, data, sock):
@@ -64,6 +69,7 @@ def postgres_server(workdir: Path):
     finally:
         subprocess.run(_as_postgres([str(bindir / "pg_ctl"), "-D", str(data), "-m", "fast", "-w", "stop"]),
                        capture_output=True)
+        shutil.rmtree(own, ignore_errors=True)
 
 
 def create_database(base_url: str, name: str) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from workbench.commands._help import add_verb
 
 EXAMPLES = """\
-  # the demo-sized search of pipelines/learn.yaml (6 trials, 2 worker processes, pruning)
+  # the demo-sized search of pipelines/learn.yaml (4 trials, 2 worker processes, pruning)
   workbench tune --data datasets/processed/demo-tunnel-interp.parquet
 
   # a longer search; run the same command again later (or on a second shell) to add trials

@@ -125,44 +125,61 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
     stage are linear and time-invariant per channel, so the order does not change the result.
     """
     coefs = coefs or {}
+    cache = {} if cache is None else cache
     in_key = _key(config.stage("input"))
-    f_key = (in_key, _key(config.stage("force")), None if only is None else tuple(sorted(only)))
-    hit = cache.get(("force",) + f_key) if cache is not None else None
-    if hit is None:
-        ctx = cache.get(("ctx", in_key)) if cache is not None else None
-        if ctx is None:
-            motion = rs.motion
-            for a in config.stage("input"):
-                motion = a.effect.transform_motion(motion, a.nl)
-            ctx = Context(rs, model, motion, geometry)
-        base = ctx.base.copy()
-        names, cols, sup, lnames, lcols = [], [], [], [], []
-        for a in config.stage("force"):
+    ctx = cache.get(("ctx", in_key))
+    if ctx is None:
+        for k in [k for k in cache if k[0] in ("ctx", "term", "base") and k[1] != in_key]:
+            del cache[k]
+        motion = rs.motion
+        for a in config.stage("input"):
+            motion = a.effect.transform_motion(motion, a.nl)
+        ctx = Context(rs, model, motion, geometry)
+        cache[("ctx", in_key)] = ctx
+
+    def lp(x: np.ndarray) -> np.ndarray:
+        return lowpass(x, ctx.dt_s, axis=-2) if lowpass is not None else x
+
+    if ("base", in_key) not in cache:
+        cache[("base", in_key)] = lp(ctx.base)
+    base = cache[("base", in_key)].copy()
+    names, cols, sup, lnames, lcols = [], [], [], [], []
+    for a in config.stage("force"):
+        # each term is low-passed once per motion and parameter value (the filter is linear)
+        tkey = ("term", in_key, a.name, _key([a])[0][1])
+        if tkey not in cache:
+            olds = [k for k in cache if k[0] == "term" and k[2] == a.name]
+            for k in olds[:-1]:
+                del cache[k]
             t = a.effect.force_terms(ctx, a.nl)
-            if t.fixed is not None:
-                base += t.fixed
-            for n, c, s in zip(t.names, t.cols, t.support, strict=False):
-                q = f"{a.name}.{n}"
-                if only is None or q in only:
-                    names.append(q)
-                    cols.append(c)
-                    sup.append(np.asarray(s, bool))
-            for n, c in zip(t.local_names, t.local, strict=False):
-                lnames.append(f"{a.name}.{n}")
-                lcols.append(c)
-        stack = np.stack([base, *cols, *lcols])
-        if lowpass is not None:
-            stack = lowpass(stack, ctx.dt_s, axis=-2)
-        hit = (ctx, stack, names, sup, lnames)
-        if cache is not None:
-            for k in [k for k in cache if k[0] == "force"][:-1]:
+            stack = [x for x in (t.fixed, *t.cols, *t.local) if x is not None]
+            stack = list(lp(np.stack(stack))) if stack else []
+            fixed = stack.pop(0) if t.fixed is not None else None
+            cache[tkey] = (t.names, stack[:len(t.cols)], t.support, fixed, t.local_names, stack[len(t.cols):])
+        t_names, t_cols, t_sup, fixed, t_lnames, t_local = cache[tkey]
+        if fixed is not None:
+            base += fixed
+        for n, c, sp in zip(t_names, t_cols, t_sup, strict=False):
+            q = f"{a.name}.{n}"
+            if only is None or q in only:
+                names.append(q)
+                cols.append(c)
+                sup.append(np.asarray(sp, bool))
+        for n, c in zip(t_lnames, t_local, strict=False):
+            lnames.append(f"{a.name}.{n}")
+            lcols.append(c)
+    if config.stage("filter"):
+        # the same stack object for the same force stage: a mode search reuses its interpolation
+        skey = ("stack", in_key, _key(config.stage("force")), None if only is None else tuple(sorted(only)))
+        if skey not in cache:
+            for k in [k for k in cache if k[0] == "stack"]:
                 del cache[k]
-            for k in [k for k in cache if k[0] == "ctx" and k[1] != in_key]:
-                del cache[k]
-            cache[("force",) + f_key] = hit
-            cache[("ctx", in_key)] = ctx
+            cache[skey] = np.stack([base, *cols, *lcols])
+        stack = cache[skey]
+    else:
+        stack = [base, *cols, *lcols]
+    hit = (ctx, stack, names, sup, lnames)
     ctx, stack, names, sup, lnames = hit
-    names, sup = list(names), list(sup)
     for a in config.stage("filter"):
         stack = a.effect.filter_wrench(stack, ctx.dt_s, a.nl)
     base = stack[0]

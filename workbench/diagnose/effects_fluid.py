@@ -18,6 +18,7 @@ class AddedMassError(Effect):
     """Extra added mass on the web normal: dF_n = -delta_kg a_n."""
 
     name = "added_mass_error"
+    ranges = {"delta_kg": (-0.5, 0.5)}
     formula = "dF_n = -delta_kg * a_n (web normal, at Q)"
 
     def linear_names(self):  # noqa: D102
@@ -31,6 +32,7 @@ class DragCoefficientError(Effect):
     """Extra normal drag: dF_n = 0.5 rho S delta_c |V_n| V_n."""
 
     name = "drag_coefficient_error"
+    ranges = {"delta_c": (-3.0, 3.0)}
     formula = "dF_n = 0.5 rho S delta_c |V_n| V_n (web normal, at Q)"
 
     def linear_names(self):  # noqa: D102
@@ -44,6 +46,7 @@ class Lift(Effect):
     """Lift from the tangential relative flow turned to the normal: dF_n = 0.5 rho S cl |V| V_t."""
 
     name = "lift"
+    ranges = {"cl": (-3.0, 3.0)}
     formula = "dF_n = 0.5 rho S cl |V| V_t (web normal, at Q)"
 
     def linear_names(self):  # noqa: D102
@@ -57,6 +60,7 @@ class LinkDrag(Effect):
     """Cross-flow drag of thigh (O-C) and calf (B to the web's near edge): 0.5 rho cd_d_m |V_n| V_n per length."""
 
     name = "link_drag"
+    ranges = {"cd_d_m": (-0.1, 0.1)}
     formula = "dF/dl = 0.5 rho cd_d_m |V_n| V_n along thigh and calf"
 
     def __init__(self, x_m: float = 0.01, quadrature: int = 4):
@@ -77,6 +81,7 @@ class LegWeightBuoyancy(Effect):
     """
 
     name = "leg_weight_buoyancy"
+    ranges = {"net_n": (-5.0, 5.0), "arm_m": (-0.1, 0.4)}
     formula = "fz += net_n; (tx, ty) += net_n arm_m (X_Q, -x_Q) / |Q|"
 
     def linear_names(self):  # noqa: D102
@@ -109,6 +114,7 @@ class CirculatoryLag(Effect):
     """
 
     name = "circulatory_lag"
+    ranges = {"tau_chords": (0.02, 30.0)}
     formula = "F_D -> first-order lag, tau = tau_chords c / max(|V_rel|, 0.05); c = 0.06 m"
     search = (SearchParam("tau_chords", (0.03, 0.1, 0.25, 0.5, 0.9, 1.5, 2.5, 4.0, 7.0, 12.0), (0.005, 40.0),
                           log=True),)

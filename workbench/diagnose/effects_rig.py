@@ -40,6 +40,7 @@ class ServoLag(Effect):
     """Actual joint angles = first-order low-pass (tau_s) of the commanded angles, both joints."""
 
     name = "servo_lag"
+    ranges = {"tau_s": (0.0, 0.3)}
     stage = "input"
     formula = "theta = theta_cmd / (1 + tau_s s), both joints"
     search = (SearchParam("tau_s", (0.005, 0.012, 0.02, 0.03, 0.04, 0.055, 0.075, 0.1, 0.14, 0.2), (0.0005, 0.4),
@@ -65,6 +66,7 @@ class TunnelBlockage(Effect):
     """
 
     name = "tunnel_blockage"
+    ranges = {"epsilon": (-0.1, 0.5)}
     stage = "input"
     physical = False
     formula = "U_eff = U sqrt(1 + epsilon)"
@@ -86,6 +88,7 @@ class FlowUnsteadiness(Effect):
     """
 
     name = "flow_unsteadiness"
+    ranges = {"tone_fraction": (0.0, 0.3)}
     physical = False
     formula = "U(t) = U (1 + tone_fraction sin(2 pi tone_hz t) + noise of RMS rms_fraction)"
     search = (SearchParam("tone_hz", (), (0.05, 30.0)),)
@@ -174,6 +177,7 @@ class StructuralResonance(Effect):
     """Reading = true wrench through a 2nd-order mode wn^2 / (s^2 + 2 zeta wn s + wn^2), all channels."""
 
     name = "structural_resonance"
+    ranges = {"f_n_hz": (0.7, 12.0), "zeta": (0.0, 1.0)}
     stage = "filter"
     physical = False
     formula = "W_read = W wn^2 / (s^2 + 2 zeta wn s + wn^2), wn = 2 pi f_n_hz"
@@ -194,6 +198,7 @@ class LoadcellCrosstalk(Effect):
     """
 
     name = "loadcell_crosstalk"
+    ranges = {"x_*": (-0.15, 0.15)}
     stage = "sensor"
     physical = False
     prunable = True

@@ -43,6 +43,13 @@ class LegKinematics:
                                self.ah, self.ak, geometry)
         u = np.asarray(motion.flow_speed_mps, float)
         self.water = np.stack([-u, np.zeros_like(u)], axis=-1)
+        self._units: dict[tuple, np.ndarray] = {}
+
+    def _memo(self, key: tuple, make) -> np.ndarray:
+        """Unit columns are asked for again and again while the motion stays the same."""
+        if key not in self._units:
+            self._units[key] = make()
+        return self._units[key]
 
     @property
     def area_m2(self) -> float:
@@ -81,7 +88,7 @@ class LegKinematics:
     # --------------------------------------------------------------- unit columns
     def added_mass_unit(self) -> np.ndarray:
         """dF_n = -a_n (per kg of extra added mass)."""
-        return self.normal_wrench(-self.a_n)
+        return self._memo(("am",), lambda: self.normal_wrench(-self.a_n))
 
     def normal_drag_force(self, c: float = 1.0) -> np.ndarray:
         """0.5 rho S c |V_n| V_n (N along the normal)."""
@@ -89,11 +96,11 @@ class LegKinematics:
 
     def drag_unit(self) -> np.ndarray:
         """dF_n = 0.5 rho S |V_n| V_n (per unit of drag coefficient)."""
-        return self.normal_wrench(self.normal_drag_force(1.0))
+        return self._memo(("drag",), lambda: self.normal_wrench(self.normal_drag_force(1.0)))
 
     def lift_unit(self) -> np.ndarray:
         """dF_n = 0.5 rho S |V| V_t (per unit lift coefficient), the tangential flow turned to the normal."""
-        return self.normal_wrench(0.5 * self.rho * self.area_m2 * self.speed * self.v_t)
+        return self._memo(("lift",), lambda: self.normal_wrench(0.5 * self.rho * self.area_m2 * self.speed * self.v_t))
 
     def link_points(self, quadrature: int = 4):
         """Gauss points of thigh (O to C) and calf (B to the web's near edge): position, velocity, normal, length."""
@@ -114,6 +121,9 @@ class LegKinematics:
 
     def link_drag_unit(self, x_m: float = 0.01, quadrature: int = 4) -> np.ndarray:
         """Cross-flow drag of thigh and calf per unit cd_d_m: 0.5 rho |V_n| V_n per length, integrated."""
+        return self._memo(("link", x_m, quadrature), lambda: self._link_drag(x_m, quadrature))
+
+    def _link_drag(self, x_m: float, quadrature: int) -> np.ndarray:
         out = np.zeros(self.state.q.shape[:-1] + (6,))
         for pos, vel, nrm, dl in self.link_points(quadrature):
             v_n = _dot(self.water - vel, nrm)

@@ -169,6 +169,18 @@ class Effect:
               for k in params}
         return params, se
 
+    #: physically plausible range of each canonical parameter (a fit outside absorbs something else)
+    ranges: dict[str, tuple[float, float]] = {}
+
+    def implausible(self, params: dict) -> str | None:
+        """Why the fitted canonical parameters are not this effect (None when they are plausible)."""
+        for k, v in params.items():
+            rng = self.ranges.get(k) or next((r for pat, r in self.ranges.items()
+                                              if pat.endswith("*") and k.startswith(pat[:-1])), None)
+            if rng and v is not None and np.isfinite(v) and not rng[0] <= v <= rng[1]:
+                return f"{k} = {v:.3g} is outside the plausible range [{rng[0]:g}, {rng[1]:g}]"
+        return None
+
     def null_variants(self, nl: dict) -> list[dict]:
         """Parameter values that should explain nothing (the null of per-run nuisance fits)."""
         return []

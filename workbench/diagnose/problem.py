@@ -47,7 +47,9 @@ class Problem:
         self._search_blocks = {id(rs): make_blocks(rs, self.settings.search_stride, ds.block_s)
                                for rs in self.search_sets}
         self.weights = np.ones(6)
-        self._caches: dict[int, dict] = {id(rs): {} for rs in self.search_sets}
+        # the model's output, kinematics and the last force-stage stack per batch (a search over a
+        # filter, sensor or per-run parameter, and the fixed-point passes, reuse them)
+        self._caches: dict[int, dict] = {id(rs): {} for rs in [*self.search_sets, *campaign.sets]}
         base = self.fit(Configuration(), sets="train")
         sse_c = base.sse_block_c.sum(axis=0)
         n = base_n = self._ticks(sets="train")

@@ -46,7 +46,7 @@ class SelectionSettings:
     #: half-width of the tone-frequency search around a residual peak (Hz)
     tone_window_hz: float = 0.12
     #: Nelder-Mead evaluations per nonlinear parameter in refinements
-    refine_evals: int = 14
+    refine_evals: int = 12
     #: tone candidates tried per step (the strongest residual lines)
     max_peaks: int = 2
     #: half-width (log units) of a warm-started 1-D search around the last optimum
@@ -194,8 +194,8 @@ class StepwiseSelection:
             res = optimize.minimize_scalar(lambda x: objective(from_x(np.array([x]))),
                                            bounds=(max(lo[0], x0[0] - step), min(hi[0], x0[0] + step)),
                                            method="bounded",
-                                           options={"xatol": 1e-3 if logs[0] else 1e-4,
-                                                    "maxiter": self.settings.refine_evals + 6})
+                                           options={"xatol": 0.005 if logs[0] else 5e-4,
+                                                    "maxiter": self.settings.refine_evals})
             xbest = np.array([res.x])
         else:
             simplex = [x0] + [x0 + np.eye(len(x0))[i] * (0.3 if logs[i] else 0.1 * max(abs(x0[i]), 0.5))
@@ -307,6 +307,10 @@ class StepwiseSelection:
                     reasons.append(f"not significant (p={c.test['p']:.2g} >= {level:.2g})")
                 if c.gain_c.max() < s.min_gain:
                     reasons.append(f"held-out gain {c.gain_c.max():.1%} < {s.min_gain:.0%}")
+                if not reasons:
+                    why = _implausible(c)
+                    if why:
+                        reasons.append(f"implausible: {why}")
                 if not reasons and plausible is not None:
                     ok, note = plausible(c, config, current)
                     if not ok:
@@ -401,6 +405,16 @@ class StepwiseSelection:
             config = rest.with_effect(Active(a.effect, nl))
         current = problem.fit(config, coefs, names)
         return config, current
+
+
+def _implausible(c: Candidate) -> str | None:
+    """The candidate's canonical parameters outside its plausible ranges (it would absorb another misfit)."""
+    own = {k.split(".", 1)[1]: v for k, v in c.fit.coefs().items() if k.split(".", 1)[0] == c.effect.name}
+    try:
+        params, _ = c.effect.canonical_params(own, dict(c.active.nl), {}, None)
+    except (ValueError, ZeroDivisionError, KeyError):
+        return None
+    return c.effect.implausible({k: v for k, v in params.items() if isinstance(v, (int, float))})
 
 
 def _heldout_mse(f: lsq.Fit) -> np.ndarray:

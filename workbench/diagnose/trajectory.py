@@ -254,6 +254,13 @@ class TrajectoryDiagnosis:
 def diagnose_trajectories(tracks: list[Track], sims: list[SimTrack], model: str = "model",
                           settings: TrajectorySettings | None = None) -> TrajectoryDiagnosis:
     """Forward selection of trajectory effects by leave-one-trial-out error."""
+    from workbench.diagnose.loop import one_blas_thread
+
+    with one_blas_thread():
+        return _diagnose_trajectories(tracks, sims, model, settings)
+
+
+def _diagnose_trajectories(tracks, sims, model, settings) -> TrajectoryDiagnosis:
     s = settings or TrajectorySettings()
     if len(tracks) < 3:
         raise DataError(f"{len(tracks)} tracked trial(s); the trajectory diagnosis needs at least three")

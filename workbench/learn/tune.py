@@ -8,8 +8,8 @@ processes on one machine), or any Optuna storage URL (``postgresql://...`` for a
 share of ``n_trials`` so that no trial is lost or run twice; running the same command on another
 machine against the same storage adds its trials to the same study. Each trial is one
 ``train(cfg)`` call with fewer epochs and windows and no test scoring, a child MLflow run (pruned
-trials end KILLED),
-pruned on the validation loss by Optuna's median rule after ``n_warmup_steps`` epochs. The best
+trials end KILLED), pruned on the validation loss by Optuna's median rule after
+``n_warmup_steps`` epochs. The best
 trial (lowest validation loss, never the test score) has its logged model registered under
 the ``tuned`` alias; its parameters go to ``best.json`` as ``--set`` overrides for ``workbench train``.
 """
@@ -77,8 +77,22 @@ def resolve_storage(storage: str | None, study: str):
     if "://" not in storage:
         raise ContractError(f"storage {storage!r} is neither a .journal file nor a storage URL",
                             hint="e.g. .optuna/study.journal or postgresql://user@host/db")
-    del optuna
-    return storage, storage
+    # Several machines starting on an empty database race to create Optuna's schema (PostgreSQL
+    # then raises a unique violation on its enum types): whoever loses waits and retries once the
+    # winner's tables exist.
+    import random
+    import time
+
+    from sqlalchemy.exc import IntegrityError, ProgrammingError
+
+    for attempt in range(6):
+        try:
+            return optuna.storages.RDBStorage(storage), storage
+        except (IntegrityError, ProgrammingError):
+            if attempt == 5:
+                raise
+            time.sleep(0.5 + random.random())
+    raise AssertionError("unreachable")
 
 
 def suggest(trial, space: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
