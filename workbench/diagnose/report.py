@@ -71,17 +71,19 @@ def fig_spectra(d, path: Path) -> None:
     eb, ea = d.evidence_before, d.evidence_after
     fig, axes = plt.subplots(2, 3, figsize=(13, 6.5))
     gait = sorted({round(r.freq, 3) for r in d.residuals_before if np.isfinite(r.freq)})
+    fmax = 1.3 * d.settings.evidence.fmax_hz
+    kb, ka = eb.freqs <= fmax, ea.freqs <= fmax
     for c, ax in enumerate(axes.ravel()):
-        ax.semilogy(eb.freqs, eb.psd_rest[:, c], color="tab:red", lw=1, label="before")
-        ax.semilogy(ea.freqs, ea.psd_rest[:, c], color="tab:blue", lw=1, label="after")
-        ax.semilogy(ea.freqs, ea.floor[:, c], color="0.5", lw=0.8, ls=":", label="floor (after)")
+        ax.semilogy(eb.freqs[kb], eb.psd_rest[kb, c], color="tab:red", lw=1, label="before")
+        ax.semilogy(ea.freqs[ka], ea.psd_rest[ka, c], color="tab:blue", lw=1, label="after")
+        ax.semilogy(ea.freqs[ka], ea.floor[ka, c], color="0.5", lw=0.8, ls=":", label="floor (after)")
         if gait:
             for k in range(1, 13):
                 ax.axvline(k * gait[0], color="0.85", lw=0.6, zorder=0)
         for p in eb.peaks:
             if CHANNELS[c] in p.channels:
                 ax.axvline(p.frequency_hz, color="tab:orange", lw=1.2, ls="--")
-        ax.set_xlim(0, eb.freqs.max() if len(eb.freqs) else 6)
+        ax.set_xlim(0, fmax)
         ax.set_title(CHANNELS[c], fontsize=9)
         ax.set_xlabel("Hz")
     axes[0, 0].legend(fontsize=7)

@@ -74,7 +74,7 @@ class TabulationSettings:
     startup_correction: bool = True
     #: ... recomputed when their flow moved more than this since the last time (m/s; between: the
     #: table's change is added)
-    startup_tol_mps: float = 0.002
+    startup_tol_mps: float = 0.005
 
     def __post_init__(self):
         if self.mode not in TABULATION_MODES:
