@@ -8,6 +8,8 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 export PATH := $(abspath $(BIN)):$(PATH)
 export MPLBACKEND := Agg
+# one BLAS thread: on 2 shared cores multi-threaded OpenBLAS made small products 1000x slower
+export OPENBLAS_NUM_THREADS := 1
 
 .PHONY: setup system-deps demo test test-fast bench lint clean-demo
 

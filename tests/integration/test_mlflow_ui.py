@@ -9,7 +9,6 @@ import urllib.request
 from pathlib import Path
 
 import pytest
-
 from itest_servers import mlflow_server
 
 pytestmark = pytest.mark.slow

@@ -116,7 +116,7 @@ def test_saved_folder_reloads_identically(model, tmp_path):
     again = load_model(tmp_path)
     m = _motion(np.arange(100) / 65)
     assert np.array_equal(model.wrench(m), again.wrench(m))
-    assert again.describe()["variant"] == "lstm" and again.seq_len == 16
+    assert again.describe()["variant"] == "lstm" and again.seq_len == model.seq_len
     (tmp_path / "weights.pt").write_bytes(b"garbage")
     with pytest.raises(ModelError, match="weights.pt does not load"):
         load_model(tmp_path)

@@ -8,9 +8,13 @@ import sys
 
 import numpy as np
 import pytest
+import yaml
 from learn_helpers import CONFIG, subprocess_env
 
 from workbench.cli import main
+
+#: the window length the project file configures (the runs must record it)
+SEQ_LEN = int(yaml.safe_load(CONFIG.read_text())["train"]["data"]["seq_len"])
 
 SHRINK = ["data.train_windows_per_epoch=1536", "data.batch_size=128", "model.hidden_size=16", "trainer.max_epochs=2",
           "trainer.max_time_s=null", "trainer.early_stop_patience=0"]
@@ -39,7 +43,7 @@ def test_train_writes_model_folder_and_registers_champion(trained, project):
     tags = run.data.tags
     assert tags["campaign"] == "synth" and tags["variant"] == "lstm" and tags["dvc_stage"] == "train"
     assert tags["kind"] == "train" and tags["git_commit"]
-    assert run.data.params["model.dropout"] == "0.21" and run.data.params["data.seq_len"] == "16"
+    assert run.data.params["model.dropout"] == "0.21" and run.data.params["data.seq_len"] == str(SEQ_LEN)
     curve = client.get_metric_history(run.info.run_id, "val_loss")
     assert [m.step for m in curve] == [1, 2]
     saved = json.loads((trained / "metrics.json").read_text())
@@ -89,7 +93,7 @@ def test_evaluate_writes_the_contract_metrics_and_figures(trained, project, parq
     split = json.loads((trained / "split.json").read_text())
     n_test_sets = split["counts"]["test"]
     assert m["lstm"]["n_runs"] == m["ef"]["n_runs"] == 2 * n_test_sets
-    assert m["lstm"]["n_ticks"] == m["ef"]["n_ticks"] == 2 * n_test_sets * (390 - 15)
+    assert m["lstm"]["n_ticks"] == m["ef"]["n_ticks"] == 2 * n_test_sets * (390 - (SEQ_LEN - 1))
     assert {p.name for p in figs.iterdir()} == {"prediction_a.png", "prediction_b.png", "mse_boxplot.png"}
     # the same numbers from the measured-only file
     out2 = tmp_path / "again.json"

@@ -8,7 +8,7 @@ the report and the augmented model are written from). No files are touched here.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -383,6 +383,10 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
     mse_before = _heldout_mse(res_before)
     mse_after = _heldout_mse(res_after)
     effects = _effect_reports(problem, result, base_fit, mse_before, ev_before, s)
+    for e in effects:
+        if e.name == "flow_unsteadiness":
+            rms, se = flow_noise_rms(res_after, flow_gains(problem, config), problem.weights)
+            e.params["rms_fraction"], e.stderr["rms_fraction"] = rms, se
     unexplained = _unexplained(ev_after, effects, s)
     coefs = final.coefs()
     local: dict[str, dict[str, float]] = {}
@@ -398,6 +402,44 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
         final_table=result.last_table, heldout_runs=campaign.run_ids(True), train_runs=campaign.run_ids(False),
         settings=s, runtime_s=time.perf_counter() - t_start,
         profiles={st.candidate.effect.name: st.candidate.profile for st in result.steps if st.candidate.profile})
+
+
+def flow_noise_rms(runs, gains, weights) -> tuple[float | None, float]:
+    """RMS of the flow's unpredictable fluctuation, from how the residual variance grows with g^2.
+
+    With ``U(t) = U (1 + n(t))`` the residual holds ``g n`` (``g = U dF/dU``), so within a run
+    ``r_c^2 = a_c + rms^2 g_c^2`` on average; per-run intercepts absorb each run's bias and noise
+    level. Channels are pooled with their precision. None when no run has flow.
+    """
+    num = den = 0.0
+    terms = []
+    for run, g in zip(runs, gains, strict=False):
+        if run.flow <= 0 or run.fit.sum() < 16:
+            continue
+        e2 = run.resid[run.fit] ** 2
+        g2 = g[run.fit] ** 2
+        x = g2 - g2.mean(axis=0)
+        y = e2 - e2.mean(axis=0)
+        for c in range(6):
+            sxx = float(x[:, c] @ x[:, c])
+            if sxx <= 0:
+                continue
+            terms.append((float(x[:, c] @ y[:, c]) / sxx, sxx, float(np.var(y[:, c])), c))
+    if not terms:
+        return None, float("nan")
+    by_c: dict[int, list] = {}
+    for b, sxx, vy, c in terms:
+        by_c.setdefault(c, []).append((b, sxx, vy))
+    for rows in by_c.values():
+        sxx = sum(r[1] for r in rows)
+        b = sum(r[0] * r[1] for r in rows) / sxx
+        var_b = max(np.mean([r[2] for r in rows]), 1e-300) / sxx
+        num += b / var_b
+        den += 1 / var_b
+    b = num / den
+    rms = float(np.sqrt(max(b, 0.0)))
+    se_b = float(np.sqrt(1 / den))
+    return rms, (se_b / (2 * rms) if rms > 0 else float("nan"))
 
 
 def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dict, ev_before: Evidence,
@@ -484,8 +526,3 @@ def _unexplained(ev: Evidence, effects: list[EffectReport], s: DiagnoseSettings)
                                f"the {worst} residual drifts by {ev.trend[worst]['slope']:.3g} per second within "
                                f"runs (t = {ev.trend[worst]['t']:.1f}) beyond what sensor_drift removed."))
     return out
-
-
-def with_overrides(settings: DiagnoseSettings, **changes) -> DiagnoseSettings:
-    """A copy with some top-level fields changed."""
-    return replace(settings, **changes)

@@ -251,36 +251,3 @@ def _hac_cov(bread_inv: np.ndarray, scores: np.ndarray, run: np.ndarray, order: 
     n, k = scores.shape
     scale = n / (n - k) if n > k + 1 else float(n)
     return ai @ meat @ ai * scale
-
-
-def heldout_test(sse_before: np.ndarray, sse_after: np.ndarray, gr: Grams, hac_lags: int = 2,
-                 correction: np.ndarray | None = None) -> dict:
-    """Is the held-out error reduction real? One-sided t-test on block gains with HAC variance.
-
-    ``correction`` (per block) is subtracted from the gains: what a fit of noise would gain
-    (per-run nuisance columns fitted on the held-out runs themselves).
-    """
-    from scipy import stats
-
-    h = gr.heldout
-    gain = sse_before[h] - sse_after[h]
-    if correction is not None:
-        gain = gain - correction[h]
-    n = len(gain)
-    total = float(sse_before[h].sum())
-    if n < 3 or total <= 0:
-        return {"t": 0.0, "p": 1.0, "relative": 0.0, "n_blocks": n}
-    mean = gain.mean()
-    d = gain - mean
-    run, order = gr.run[h], gr.order[h]
-    key = run.astype(np.int64) * 1_000_000 + order
-    srt = np.argsort(key)
-    d, run, order = d[srt], run[srt], order[srt]
-    var = float(d @ d)
-    for lag in range(1, hac_lags + 1):
-        same = (run[lag:] == run[:-lag]) & (order[lag:] - order[:-lag] == lag)
-        var += 2 * (1 - lag / (hac_lags + 1)) * float(d[lag:][same] @ d[:-lag][same])
-    var = max(var, 1e-300) / n / max(n - 1, 1)
-    t = mean / np.sqrt(var)
-    p = float(stats.t.sf(t, df=max(n - 1, 1)))
-    return {"t": float(t), "p": p, "relative": float(gain.sum() / total), "n_blocks": n}

@@ -51,6 +51,10 @@ class SelectionSettings:
     max_peaks: int = 2
     #: half-width (log units) of a warm-started 1-D search around the last optimum
     warm_window: float = 0.7
+    #: also try linear effects two at a time (each may hide the other), claimed when the pair's
+    #: held-out gain is at least ``pair_margin`` times its better member's alone
+    pairs: bool = True
+    pair_margin: float = 1.5
 
 
 @dataclass
@@ -67,12 +71,20 @@ class Candidate:
     profile: dict | None = None
     ok: bool = False
     note: str = ""
+    #: a second linear effect claimed together with this one (each may hide the other alone)
+    partner: Effect | None = None
 
     @property
     def label(self) -> str:
         """Name, with the searched values."""
         nl = ", ".join(f"{k}={v:.3g}" for k, v in self.active.nl.items())
-        return f"{self.effect.name}({nl})" if nl else self.effect.name
+        own = f"{self.effect.name}({nl})" if nl else self.effect.name
+        return f"{own} + {self.partner.name}" if self.partner is not None else own
+
+    @property
+    def effects(self) -> list[Effect]:
+        """The effect, and its partner if any."""
+        return [self.effect] + ([self.partner] if self.partner is not None else [])
 
 
 @dataclass
@@ -212,7 +224,8 @@ class StepwiseSelection:
         return dict(zip(pnames, out, strict=False)), profile
 
     # ------------------------------------------------------------ candidates
-    def _linear_candidates(self, problem, config, coefs, names, effects, current) -> list[Candidate]:
+    def _linear_candidates(self, problem, config, coefs, names, effects) -> list[Candidate]:
+        """Every linear effect alone, and every pair (fitted from one set of block sums)."""
         if not effects:
             return []
         sup = config
@@ -222,12 +235,19 @@ class StepwiseSelection:
         all_names = names + [n for e in effects for n in extra[e.name]]
         gr = problem.grams(sup, coefs, all_names)
         out = []
-        for e in effects:
-            nm = names + extra[e.name]
+        groups = [(e,) for e in effects]
+        if self.settings.pairs:
+            groups += [(a, b) for i, a in enumerate(effects) for b in effects[i + 1:]]
+        for group in groups:
+            nm = names + [n for e in group for n in extra[e.name]]
             sub = gr.subset(nm)
             f = lsq.fit(sub, problem.weights, problem.settings.hac_lags)
             f.grams = sub  # type: ignore[attr-defined]
-            out.append(Candidate(e, Active(e, {}), config.with_effect(Active(e, {})), nm, f))
+            cfg = config
+            for e in group:
+                cfg = cfg.with_effect(Active(e, {}))
+            out.append(Candidate(group[0], Active(group[0], {}), cfg, nm, f,
+                                 partner=group[1] if len(group) > 1 else None))
         return out
 
     def _nonlinear_candidate(self, problem, config, coefs, names, effect, peak=None, start=None) -> Candidate:
@@ -281,7 +301,7 @@ class StepwiseSelection:
                 library = EffectLibrary([next((r for r in remaining if r.name == e.name), e) for e in library])
                 crosstalk_configured = True
             linear = [e for e in remaining if not e.search and not e.needs_peak]
-            cands = self._linear_candidates(problem, config, coefs, names, linear, current)
+            cands = self._linear_candidates(problem, config, coefs, names, linear)
             peaks = peaks_of(config, current) if peaks_of is not None else []
             strongest = sorted(peaks, key=lambda p: -max(p.ratio.values(), default=0.0))[: s.max_peaks]
             for e in remaining:
@@ -299,6 +319,9 @@ class StepwiseSelection:
                 break
             level = s.alpha / len(cands)
             table = []
+            # entries of crosstalk and drift are chosen on the training runs before the held-out
+            # judgement: a drift fitted in six channels where one drifts would lose in the other five
+            cands = [self._prune(problem, c, coefs) if any(e.prunable for e in c.effects) else c for c in cands]
             for c in cands:
                 corr = self._null_correction(problem, c, coefs, current)
                 c.test, c.gain_c = judge(current, c.fit, c.fit.grams, hac, corr)
@@ -319,18 +342,29 @@ class StepwiseSelection:
                 c.note = "; ".join(reasons)
                 table.append({"effect": c.effect.name, "label": c.label, "t": c.test["t"], "p": c.test["p"],
                               "llr": c.test["llr"], "max_gain": float(c.gain_c.max()), "ok": c.ok, "note": c.note})
+            single = {c.effect.name: c.test["llr"] for c in cands if c.partner is None}
+            for c in cands:
+                if c.partner is not None and c.ok:
+                    alone = max(single.get(c.effect.name, 0.0), single.get(c.partner.name, 0.0), 0.0)
+                    if c.test["llr"] < s.pair_margin * alone or alone == c.test["llr"]:
+                        c.ok = False
+                        c.note = f"no better than its members alone (x{s.pair_margin:g} needed)"
+                        table[cands.index(c)].update(ok=False, note=c.note)
             ok = [c for c in cands if c.ok]
             if not ok:
                 break
             best = max(ok, key=lambda c: c.test["llr"])
-            alternatives = [c.label for c in cands if c is not best and c.effect.name != best.effect.name
+            mine = {e.name for e in best.effects}
+            alternatives = [c.label for c in cands if c is not best and not {e.name for e in c.effects} & mine
                             and c.test["llr"] >= s.ambiguity_ratio * best.test["llr"] and c.test["llr"] > 0]
-            best = self._prune(problem, best, coefs)
             before_c = _heldout_mse(current)
             config, names = best.config, best.names
             current = problem.fit(config, coefs, names)
             coefs = current.coefs()
-            steps.append(Step(best, before_c, _heldout_mse(current), table, alternatives))
+            for e in best.effects:
+                member = Candidate(e, Active(e, dict(best.active.nl) if e is best.effect else {}), best.config,
+                                   best.names, best.fit, best.test, best.gain_c, best.profile, True, best.note)
+                steps.append(Step(member, before_c, _heldout_mse(current), table, alternatives))
         if s.refine and any(a.effect.search for a in config.actives):
             config, current = self._refine(problem, config, coefs, names, current)
         config, names, current, steps = self._backward_check(problem, config, names, current, steps)
@@ -370,10 +404,13 @@ class StepwiseSelection:
         return effect.configured(d.predict(coefs), rs.fit)
 
     def _prune(self, problem, cand: Candidate, coefs) -> Candidate:
-        """Drop individually insignificant entries of a prunable effect (crosstalk, drift) and refit."""
-        e = cand.effect
-        if not e.prunable:
-            return cand
+        """Drop individually insignificant entries of prunable effects (crosstalk, drift) and refit."""
+        for e in cand.effects:
+            if e.prunable:
+                cand = self._prune_one(problem, cand, e)
+        return cand
+
+    def _prune_one(self, problem, cand: Candidate, e: Effect) -> Candidate:
         own = [n for n in cand.names if n.startswith(e.name + ".")]
         zc = stats.norm.isf(self.settings.prune_alpha / (2 * max(len(own), 1)))
         keep = list(own)
@@ -391,9 +428,11 @@ class StepwiseSelection:
         if len(keep) == len(own):
             return cand
         names = [n for n in cand.names if n not in own] + keep
-        f = problem.fit(cand.config, coefs, names)
-        return Candidate(e, cand.active, cand.config, names, f, cand.test, cand.gain_c, cand.profile, True,
-                         cand.note)
+        sub = gr.subset(names)
+        f = lsq.fit(sub, problem.weights, problem.settings.hac_lags)
+        f.grams = sub  # type: ignore[attr-defined]
+        return Candidate(cand.effect, cand.active, cand.config, names, f, cand.test, cand.gain_c, cand.profile,
+                         cand.ok, cand.note, cand.partner)
 
     def _refine(self, problem, config, coefs, names, current):
         """Re-search each nonlinear parameter with the others at their final values (one round)."""
@@ -409,12 +448,17 @@ class StepwiseSelection:
 
 def _implausible(c: Candidate) -> str | None:
     """The candidate's canonical parameters outside its plausible ranges (it would absorb another misfit)."""
-    own = {k.split(".", 1)[1]: v for k, v in c.fit.coefs().items() if k.split(".", 1)[0] == c.effect.name}
-    try:
-        params, _ = c.effect.canonical_params(own, dict(c.active.nl), {}, None)
-    except (ValueError, ZeroDivisionError, KeyError):
-        return None
-    return c.effect.implausible({k: v for k, v in params.items() if isinstance(v, (int, float))})
+    for e in c.effects:
+        own = {k.split(".", 1)[1]: v for k, v in c.fit.coefs().items() if k.split(".", 1)[0] == e.name}
+        nl = dict(c.active.nl) if e is c.effect else {}
+        try:
+            params, _ = e.canonical_params(own, nl, {}, None)
+        except (ValueError, ZeroDivisionError, KeyError):
+            continue
+        why = e.implausible({k: v for k, v in params.items() if isinstance(v, (int, float))})
+        if why:
+            return f"{e.name}: {why}"
+    return None
 
 
 def _heldout_mse(f: lsq.Fit) -> np.ndarray:
