@@ -58,7 +58,9 @@ def _check_out(out: Path, trials_dir: Path) -> None:
     if out.exists():
         if not out.is_dir():
             raise ContractError("output path exists and is not a folder", path=out)
-        if any(out.iterdir()) and not any((out / f).exists() for f in _OUR_FILES):
+        # hidden files (a DVC-written .gitignore, say) are not somebody's results
+        visible = [p for p in out.iterdir() if not p.name.startswith(".")]
+        if visible and not any((out / f).exists() for f in _OUR_FILES):
             raise ContractError("output folder is not empty and holds no earlier scores; refusing to replace it",
                                 path=out, hint="give a new or empty folder")
 
