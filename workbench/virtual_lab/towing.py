@@ -245,19 +245,9 @@ def _run(p: TowPlan, s: TowingSettings, seed: int, root: Path, calibration: np.n
 
 
 def _write_manifest(root: Path, cid: str, plans: Sequence[TowPlan], s: TowingSettings, calibration) -> None:
-    loadcell: dict[str, Any] = {"model": s.loadcell.model, "rate_hz": float(s.loadcell.rate_hz),
-                                "full_scale": [float(x) for x in s.loadcell.full_scale]}
-    if any(p.form == "bin" for p in plans):
-        loadcell["calibration"] = calibration
-    runs = []
-    for p in plans:
-        entry: dict[str, Any] = {"id": p.id, "flow_speed_mps": p.speed_mps, "heading": p.heading}
-        if p.form == "mcap":
-            entry["mcap"] = f"runs/{p.id}.mcap"
-        else:
-            entry["loadcell"] = f"runs/{p.id}.loadcell.{'bin' if p.form == 'bin' else 'csv'}"
-            entry["carriage"] = f"runs/{p.id}.carriage.csv"
-        runs.append(entry)
+    loadcell = writers.loadcell_table(s.loadcell, [p.form for p in plans], calibration)
+    runs = [{"id": p.id, "flow_speed_mps": p.speed_mps, "heading": p.heading,
+             **writers.run_files(p.id, p.form, "carriage")} for p in plans]
     head = {"schema": "workbench/campaign@1", "id": cid, "facility": "towing_tank", "date": s.date,
             "description": s.description}
     (root / "campaign.toml").write_text(writers.manifest_text(head, {"loadcell": loadcell}, runs), encoding="utf-8")

@@ -350,21 +350,9 @@ def _finish(run: _Run, wrench: np.ndarray, root: Path, s: TunnelSettings, fx: li
 
 
 def _write_manifest(root: Path, cid: str, plans: Sequence[RunPlan], s: TunnelSettings, calibration) -> None:
-    loadcell: dict[str, Any] = {"model": s.loadcell.model, "rate_hz": float(s.loadcell.rate_hz),
-                                "full_scale": [float(x) for x in s.loadcell.full_scale]}
-    if any(p.form == "bin" for p in plans):
-        loadcell["calibration"] = calibration
-    runs = []
-    for p in plans:
-        entry: dict[str, Any] = {"id": p.id, "flow_speed_mps": p.flow_speed_mps}
-        entry.update({k: float(v) for k, v in p.params.items()})
-        entry["cycles"] = p.cycles
-        if p.form == "mcap":
-            entry["mcap"] = f"runs/{p.id}.mcap"
-        else:
-            entry["loadcell"] = f"runs/{p.id}.loadcell.{'bin' if p.form == 'bin' else 'csv'}"
-            entry["motion"] = f"runs/{p.id}.motion.csv"
-        runs.append(entry)
+    loadcell = writers.loadcell_table(s.loadcell, [p.form for p in plans], calibration)
+    runs = [{"id": p.id, "flow_speed_mps": p.flow_speed_mps, **{k: float(v) for k, v in p.params.items()},
+             "cycles": p.cycles, **writers.run_files(p.id, p.form, "motion")} for p in plans]
     head = {"schema": "workbench/campaign@1", "id": cid, "facility": "water_tunnel", "date": s.date,
             "description": s.description}
     text = writers.manifest_text(head, {"loadcell": loadcell,

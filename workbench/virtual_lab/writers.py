@@ -211,6 +211,23 @@ def manifest_text(head: Mapping[str, Any], tables: Mapping[str, Mapping[str, Any
     return "\n".join(lines) + "\n"
 
 
+def loadcell_table(lc: Any, forms: Sequence[str], calibration: Any) -> dict[str, Any]:
+    """The manifest's ``[loadcell]`` table; the calibration matrix only when a run is a ``.bin`` capture."""
+    table: dict[str, Any] = {"model": lc.model, "rate_hz": float(lc.rate_hz),
+                             "full_scale": [float(x) for x in lc.full_scale]}
+    if "bin" in forms:
+        table["calibration"] = calibration
+    return table
+
+
+def run_files(run_id: str, form: str, partner: str) -> dict[str, str]:
+    """A run's file entries: one MCAP, or the load-cell capture plus its ``partner`` log (motion/carriage)."""
+    if form == "mcap":
+        return {"mcap": f"runs/{run_id}.mcap"}
+    return {"loadcell": f"runs/{run_id}.loadcell.{'bin' if form == 'bin' else 'csv'}",
+            partner: f"runs/{run_id}.{partner}.csv"}
+
+
 def write_json(path: Path, obj: Any) -> None:
     """Pretty JSON with sorted-in-order keys as given and a trailing newline."""
     path.write_text(json.dumps(obj, indent=2, default=_json_default) + "\n", encoding="utf-8")
