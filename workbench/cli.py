@@ -69,8 +69,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _line_buffered() -> None:
+    """Progress lines appear as they are printed, also under `dvc repro`, `make` or a log pipe
+    (Python block-buffers a piped stdout, which held a stage's progress back until it ended)."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.reconfigure(line_buffering=True)
+        except (AttributeError, ValueError):  # replaced streams (pytest capture, StringIO)
+            pass
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; bad input ends with ``error: <one line>`` on stderr and exit status 2."""
+    _line_buffered()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -89,6 +89,10 @@ def test_good_trial_still_scored(scored):
     lines = (out / "scores.csv").read_text().splitlines()
     assert lines[0] == "trial_id,model,solution,task,time_s,mae_x_m,radius_m,completed"
     assert len(lines) == 2 and lines[1].startswith("ok-straight,EF,1,straight,")
+    # switched-off plots and overlays still leave their folders (DVC outputs), saying why
+    for sub, key in (("plots", "scoring.plots: false"), ("overlays", "scoring.overlay: false")):
+        assert [p.name for p in (out / sub).iterdir()] == ["README.txt"]
+        assert key in (out / sub / "README.txt").read_text()
 
 
 @pytest.mark.parametrize("tid", sorted(EXPECTED))

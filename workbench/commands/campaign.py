@@ -83,8 +83,8 @@ def run_add(args) -> int:
                             hint=f"copy it to datasets/raw/{camp.id} and add that")
     before = registry.load_registry(root)
     added = registry.register(root, camp)
-    info(f"registered {camp.id} in {registry.registry_path(root)}" if added
-         else f"{camp.id} was already registered in {registry.registry_path(root)}")
+    info(f"registered {camp.id} in {registry.REGISTRY}" if added
+         else f"{camp.id} was already registered in {registry.REGISTRY}")
     track = registry.tracking(root, folder)
     if track.kind == "stage":
         info(f"not running dvc add: {folder.name} is the {track.detail} (DVC already tracks it)")

@@ -29,7 +29,7 @@ def register(sub) -> None:
 
     p = add_verb(sub, "train", help="train a leg force model (FED-LSTM, GRU, MLP, EF-residual hybrid)",
                  description="Train one configuration of pipelines/learn.yaml (section train) on processed tunnel "
-                             "data: 16-tick windows of (V_flow, theta_H, theta_K, omega_H, omega_K) -> six-channel "
+                             "data: windows of train.data.seq_len ticks (32) of (V_flow, theta_H, theta_K, omega_H, omega_K) -> six-channel "
                              "wrench, split 7:1:2 by motion-parameter set. Prints one line per epoch, scores the "
                              "model and the EF on the held-out test sets, writes the model folder, records the run "
                              "in MLflow and registers the model with an alias.",

@@ -9,7 +9,7 @@ them for every model alike.
 
 The net was trained on one control tick (``dt_s``, 65 Hz in the paper); a motion sampled at
 another tick (> 2 % off, e.g. a simulator's 1 ms step) is resampled linearly onto the training
-tick, predicted, and interpolated back, so the 16-tick window always spans the same time.
+tick, predicted, and interpolated back, so the seq_len-tick window always spans the same time.
 
 The folder holds ``model.json`` (variant, architecture, seq_len, dt_s, normalisation, training
 provenance) and ``weights.pt`` (the state dict); see :func:`save_model` / :func:`load_model`.

@@ -99,6 +99,12 @@ def run_scoring(trials_dir: str | Path, out_dir: str | Path, params: ScoringPara
             plots.plot_boxplots(scores, tmp / "plots" / "boxplots.png", summary["comparison"].get("baseline"))
             for r in result.results:
                 plots.plot_trial(r, tmp / "plots" / "trials" / f"{r.spec.id}.png")
-        if (tmp / "overlays").exists() and not any((tmp / "overlays").iterdir()):
-            (tmp / "overlays").rmdir()
+        # plots/ and overlays/ always exist (pipelines declare them as outputs); a switched-off or
+        # empty one says why instead of vanishing
+        for sub, on, why in (("plots", p.plots, "plots are off (scoring.plots: false)"),
+                             ("overlays", p.overlay, "overlays are off (scoring.overlay: false)")):
+            d = tmp / sub
+            d.mkdir(exist_ok=True)
+            if not any(d.iterdir()):
+                write_text(d / "README.txt", (why if not on else f"no {sub} were written") + "\n")
     return result, summary
