@@ -48,3 +48,23 @@ def test_report_verb_writes_html_and_markdown(tmp_path):
     page = (out / "report.html").read_text()
     assert page.startswith("<!doctype html>") and "added_mass_error" in page and "<script" not in page
     assert (out / "report.md").is_file()
+
+
+def test_mlflow_links_cover_every_pipeline_experiment_in_flow_order(tmp_path):
+    import mlflow
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    mlflow.set_tracking_uri(uri)
+    try:
+        for exp, run in (("optimize", "straight-ef"), ("fed-lstm", "lstm 64x2 L32"), ("fed-lstm-tune", "trial 0"),
+                         ("my-own", "by hand")):
+            mlflow.set_experiment(exp)
+            with mlflow.start_run(run_name=run):
+                mlflow.log_metric("x", 1.0)
+    finally:
+        mlflow.set_tracking_uri(None)
+    sec = report.mlflow_section(uri, "http://127.0.0.1:5055")
+    labels = [label for label, _ in sec.links]
+    assert labels == ["fed-lstm: lstm 64x2 L32 (finished)", "fed-lstm-tune: trial 0 (finished)",
+                      "optimize: straight-ef (finished)", "my-own: by hand (finished)"]
+    assert all(url.startswith("http://127.0.0.1:5055/#/experiments/") for _, url in sec.links)

@@ -17,7 +17,8 @@ from typing import Any
 
 from workbench.contract.columns import WRENCH_CHANNELS
 
-MLFLOW_EXPERIMENTS = ("train", "tune", "evaluate", "optimize", "diagnose")
+#: the pipeline's MLflow experiments in the order the data flows (others in the store follow by name)
+MLFLOW_EXPERIMENTS = ("fed-lstm", "fed-lstm-tune", "evaluate", "optimize", "diagnose")
 
 
 @dataclass
@@ -204,13 +205,12 @@ def mlflow_section(tracking_uri: str | None, ui_url: str) -> Section:
         from workbench.project import mlflow_tracking_uri
 
         client = MlflowClient(tracking_uri=mlflow_tracking_uri(tracking_uri))
-        for name in MLFLOW_EXPERIMENTS:
-            exp = client.get_experiment_by_name(name)
-            if exp is None:
-                continue
+        order = {name: i for i, name in enumerate(MLFLOW_EXPERIMENTS)}
+        exps = sorted(client.search_experiments(), key=lambda e: (order.get(e.name, len(order)), e.name))
+        for exp in exps:
             runs = client.search_runs([exp.experiment_id], order_by=["attributes.start_time DESC"], max_results=5)
             for r in runs:
-                label = f"{name}: {r.info.run_name} ({r.info.status.lower()})"
+                label = f"{exp.name}: {r.info.run_name} ({r.info.status.lower()})"
                 sec.links.append((label, f"{ui_url}/#/experiments/{exp.experiment_id}/runs/{r.info.run_id}"))
     except Exception as exc:  # a report without links is still a report
         sec.paragraphs.append(f"MLflow store not readable: {type(exc).__name__}: {exc}")

@@ -94,12 +94,12 @@ def _env(project: Path) -> dict:
     return env
 
 
-def _run(args: list[str], project: Path, timeout: float = 900) -> str:
+def _run(args: list[str], project: Path, timeout: float = 900, stdout_only: bool = False) -> str:
     proc = subprocess.run(args, cwd=project, env=_env(project), capture_output=True, text=True,
                           timeout=timeout)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, f"{' '.join(args)} failed ({proc.returncode}):\n{out[-6000:]}"
-    return out
+    return proc.stdout if stdout_only else out
 
 
 def _ran(output: str) -> set[str]:
@@ -190,3 +190,31 @@ def test_new_tunnel_campaign_reruns_only_what_depends_on_it(project):
     line = next(ln for ln in listing.splitlines() if NEW in ln)
     assert "processed" in line.lower() or "yes" in line.lower(), listing
     assert _ran(_run(["dvc", "repro"], project)) == set()
+
+
+def test_metrics_plots_and_experiments(project):
+    """`dvc metrics show`, `dvc plots show` (PNG plots too) and `dvc exp run -S` on the same loop."""
+    _run(["dvc", "repro"], project, timeout=1800)  # nothing to do after the walk-through
+
+    metrics = json.loads(_run(["dvc", "metrics", "show", "--json"], project, stdout_only=True))
+    files = {name for ws in metrics.values() for name in ws.get("data", {})}
+    for path in ("datasets/metrics/leg_models.json", "datasets/drag/demo-towing/drag.json",
+                 "datasets/scores/demo-pool/summary.json", "datasets/models/fed-lstm/metrics.json",
+                 "datasets/models/tune/best.json", f"datasets/processed/{NEW}.quality.json"):
+        assert path in files, f"{path} not among dvc's metrics: {sorted(files)}"
+
+    _run(["dvc", "plots", "show", "-o", "plots-out"], project)
+    html = (project / "plots-out" / "index.html").read_text()
+    static = {p.name for p in (project / "plots-out").rglob("*.png")}
+    assert "drag.png" in " ".join(static) and "boxplots.png" in " ".join(static), sorted(static)
+    assert html.count("<img") >= 3
+
+    # An experiment with one knob changed: only the gait stages and what follows them run again.
+    out = _run(["dvc", "exp", "run", "-n", "more-generations", "-S", "pipelines/gait.yaml:optimize.nsga2.n_gen=3"],
+               project, timeout=1800)
+    assert _ran(out) == {"optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight",
+                         "optimize_lstm@turn", "virtual_pool", "score_trials", "report"}, out[-3000:]
+    table = _run(["dvc", "exp", "show", "--csv"], project, stdout_only=True)
+    header, *rows = [ln.split(",") for ln in table.strip().splitlines()]
+    col = header.index("optimize.nsga2.n_gen")
+    assert any(r[0] == "more-generations" and r[col] == "3" for r in rows), table

@@ -102,7 +102,7 @@ def test_evaluate_writes_the_contract_metrics_and_figures(trained, project, parq
     assert json.loads(out2.read_text())["lstm"]["mse"] == m["lstm"]["mse"]
     from mlflow import MlflowClient
 
-    exp = MlflowClient().get_experiment_by_name("fed-lstm")
+    exp = MlflowClient().get_experiment_by_name("evaluate")
     runs = MlflowClient().search_runs([exp.experiment_id], "tags.kind = 'evaluate'")
     assert len(runs) == 1 and runs[0].data.metrics["ef_mse_fy_n"] == pytest.approx(m["ef"]["mse"]["fy_n"])
     assert runs[0].data.tags["dvc_stage"] == "evaluate"

@@ -39,7 +39,7 @@ def test_two_workers_share_one_study_without_lost_or_duplicated_trials(config, p
     assert sorted(t.number for t in trials) == [0, 1, 2, 3]
     assert all(t.state.name in ("COMPLETE", "PRUNED") for t in trials)
     client = MlflowClient()
-    exp = client.get_experiment_by_name("fed-lstm")
+    exp = client.get_experiment_by_name("fed-lstm-tune")  # the tune section's experiment, apart from training
     parent = client.search_runs([exp.experiment_id], "tags.kind = 'tune'")
     assert len(parent) == 1 and parent[0].info.status == "FINISHED"
     children = client.search_runs([exp.experiment_id], "tags.kind = 'trial' and tags.study = 's2'")

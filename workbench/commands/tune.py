@@ -54,6 +54,8 @@ def run(args) -> int:
 
     cfg = cli_config(args)
     tune = TuneCfg.from_dict(load_section(args.config, "tune"))
+    if tune.experiment and not args.experiment:  # the tune section's experiment, unless --experiment
+        cfg = cfg.with_overrides({"tracking.experiment": tune.experiment})
     over = {k: v for k, v in {"study": args.study, "storage": args.storage, "n_trials": args.n_trials,
                               "workers": args.workers}.items() if v is not None}
     tune = dataclasses.replace(tune, **over)

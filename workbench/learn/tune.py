@@ -50,6 +50,8 @@ class TuneCfg:
     space: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     register_best: bool = True
     alias: str = "tuned"
+    #: MLflow experiment of the study's runs (None: the train section's tracking.experiment)
+    experiment: str | None = None
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "TuneCfg":
