@@ -70,8 +70,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _line_buffered() -> None:
-    """Progress lines appear as they are printed, also under `dvc repro`, `make` or a log pipe
-    (Python block-buffers a piped stdout, which held a stage's progress back until it ended)."""
+    """Progress lines appear as they are printed, also under `dvc repro`, `make` or a log pipe.
+
+    Python block-buffers a piped stdout, which held a stage's progress back until it ended.
+    """
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.reconfigure(line_buffering=True)

@@ -3,7 +3,9 @@
 Two independent `workbench tune` processes (standing in for two machines) share one Optuna
 study in a real PostgreSQL server and log to one MLflow server whose backend is PostgreSQL and
 which serves the artifacts. Afterwards the study has exactly the trials asked for, with unique
-numbers, and MLflow holds one trial run per Optuna trial.
+numbers, MLflow holds one trial run per Optuna trial, and the registry's ``tuned`` alias names the
+study's best trial. Registering one model from many machines at the same moment (the race the
+two workers' ends once lost in CI) succeeds everywhere.
 """
 
 import json
@@ -11,6 +13,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import urllib.request
 from pathlib import Path
 
@@ -77,3 +80,45 @@ def test_two_workers_share_a_postgres_study_and_one_mlflow_server(small_processe
             trial_tags = [{t["key"]: t["value"] for t in r["data"].get("tags", [])} for r in runs]
             trial_numbers = sorted(int(t["trial"]) for t in trial_tags if t.get("kind") == "trial")
             assert trial_numbers == list(range(2 * TRIALS_PER_MACHINE)), trial_tags
+
+            # the alias the workers set names the study's best trial, registered once
+            import mlflow
+            from mlflow import MlflowClient
+
+            mlflow.set_tracking_uri(server)
+            client = MlflowClient()
+            best_run = study.best_trial.user_attrs["mlflow_run_id"]
+            assert client.get_model_version_by_alias("fed-lstm", "tuned").run_id == best_run
+            assert len(client.search_model_versions(f"name = 'fed-lstm' and run_id = '{best_run}'")) == 1
+
+            # many machines registering and aliasing at the same instant: every one succeeds
+            _register_all_at_once(client, [r for r in trial_tags if r.get("kind") == "trial"], runs)
+
+
+def _register_all_at_once(client, trial_tags, runs, n_threads=8):
+    from workbench.learn.tracking import register_model
+
+    run_objs = [client.get_run(r["info"]["run_id"]) for r in runs
+                if {t["key"]: t["value"] for t in r["data"].get("tags", [])}.get("kind") == "trial"]
+    assert run_objs, trial_tags
+    barrier = threading.Barrier(n_threads)
+    errors, versions = [], []
+
+    def one(i):
+        barrier.wait()
+        try:
+            versions.append(register_model(run_objs[i % len(run_objs)], "race-model", "race"))
+        except Exception as exc:  # noqa: BLE001 - collected and asserted below
+            errors.append(repr(exc))
+
+    threads = [threading.Thread(target=one, args=(i,)) for i in range(n_threads)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=300)
+    assert not errors, errors
+    assert len(versions) == n_threads
+    alias = client.get_model_version_by_alias("race-model", "race")
+    assert alias.version in versions
+    for run in run_objs:  # each run registered once, whoever got there first
+        assert len(client.search_model_versions(f"name = 'race-model' and run_id = '{run.info.run_id}'")) == 1

@@ -18,7 +18,7 @@ def register(sub) -> None:
         "'<run>@v<speed>'). Parameters: the 'interpolate' section of "
         f"{PARAMS_FILE}; see docs/ingest.md.",
         examples="""\
-  workbench interpolate datasets/processed/demo-tunnel.parquet --out datasets/processed/demo-tunnel-interp.parquet
+  workbench interpolate datasets/processed/demo-tunnel.parquet --out datasets/processed/interp/demo-tunnel.parquet
   workbench interpolate in.parquet --out out.parquet --speeds 0.05 0.15 0.25 0.35 --extrapolate
 """)
     p.add_argument("input", type=Path, help="processed tunnel file (from workbench ingest)")

@@ -7,7 +7,7 @@ from workbench.commands._help import add_verb
 EXAMPLES = """\
   # the paper's FED-LSTM on the interpolated demo campaign (writes datasets/models/fed-lstm,
   # logs to MLflow, registers models:/fed-lstm@champion)
-  workbench train --data datasets/processed/demo-tunnel-interp.parquet
+  workbench train --data datasets/processed/interp/demo-tunnel.parquet
 
   # a GRU variant, two campaigns, not promoted to champion
   workbench train --data a.parquet b.parquet --set model.variant=gru --alias candidate

@@ -6,7 +6,7 @@ from workbench.commands._help import add_verb
 
 EXAMPLES = """\
   # the demo-sized search of pipelines/learn.yaml (4 trials, 2 worker processes, pruning)
-  workbench tune --data datasets/processed/demo-tunnel-interp.parquet
+  workbench tune --data datasets/processed/interp/demo-tunnel.parquet
 
   # a longer search; run the same command again later (or on a second shell) to add trials
   workbench tune --data d.parquet --study big --n-trials 40 --workers 2 --set trainer.max_epochs=8

@@ -75,7 +75,12 @@ def setup(tracking_uri: str | None, experiment: str | None) -> str:
 
 
 def register_model(run, name: str, alias: str | None, tags: Mapping[str, str] | None = None) -> str:
-    """Register the run's ``model/`` artifact as a new version of ``name`` and point ``alias`` at it."""
+    """Register the run's ``model/`` artifact as a version of ``name`` and point ``alias`` at it.
+
+    Safe when several machines do it at once on one shared store (tune workers finishing
+    together): a run keeps one version (the oldest, when two machines registered it at the same
+    moment), and a registry write that loses a race on the store's unique keys is retried.
+    """
     from mlflow import MlflowClient
 
     client = MlflowClient()
@@ -87,11 +92,45 @@ def register_model(run, name: str, alias: str | None, tags: Mapping[str, str] | 
                                                               "load with workbench.hydro.legmodel.load_leg_model")
         except Exception:  # noqa: BLE001
             pass
-    mv = client.create_model_version(name, source=f"{run.info.artifact_uri}/{MODEL_ARTIFACT}", run_id=run.info.run_id,
-                                     tags=dict(tags or {}))
+    run_id = run.info.run_id
+    mv = version_of_run(client, name, run_id)
+    if mv is None:
+        mine = _retry_race(lambda: client.create_model_version(
+            name, source=f"{run.info.artifact_uri}/{MODEL_ARTIFACT}", run_id=run_id, tags=dict(tags or {})))
+        # another machine may have registered the same run a moment before: keep its (older) version
+        mv = version_of_run(client, name, run_id) or mine
+        if mv.version != mine.version:
+            client.delete_model_version(name, mine.version)
     if alias:
-        client.set_registered_model_alias(name, alias, mv.version)
+        _retry_race(lambda: client.set_registered_model_alias(name, alias, mv.version))
     return str(mv.version)
+
+
+def version_of_run(client, name: str, run_id: str):
+    """The oldest version of registered model ``name`` made from run ``run_id``, or None."""
+    found = client.search_model_versions(f"name = '{name}' and run_id = '{run_id}'")
+    return min(found, key=lambda v: int(v.version)) if found else None
+
+
+def _retry_race(call, attempts: int = 6):
+    """``call()``, retried with a random back-off when the store refuses it (a concurrent writer won).
+
+    MLflow's SQL registry sets an alias by select-then-insert, so two writers of one alias can
+    both insert and one fails on the primary key; on the retry the row exists and is updated.
+    """
+    import random
+    import time
+
+    from mlflow.exceptions import MlflowException
+
+    for attempt in range(attempts):
+        try:
+            return call()
+        except MlflowException:
+            if attempt == attempts - 1:
+                raise
+            time.sleep(0.2 + random.random() * (0.5 + attempt))
+    raise AssertionError("unreachable")
 
 
 def model_uri(name: str, alias: str = "champion") -> str:

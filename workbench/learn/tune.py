@@ -270,7 +270,7 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
         if summary["best"] is None:
             raise StageError(f"study {tune.study!r}: no trial completed; first failure: {summary['first_failure']}")
         if base.tracking.enabled and tune.register_best and summary["best"].get("mlflow_run_id"):
-            summary["best"]["model_version"] = _register_best(base, tune, summary["best"])
+            summary["best"]["model_version"] = _register_best(base, tune, summary["best"], storage)
         if base.tracking.enabled:
             mlflow.log_metrics({"best_val_loss": summary["best"]["value"], "n_complete": summary["counts"]["COMPLETE"],
                                 "n_pruned": summary["counts"]["PRUNED"], "n_failed": summary["counts"]["FAIL"],
@@ -352,13 +352,30 @@ def summarise(study, baseline: set[int], elapsed_s: float = 0.0) -> dict:
             "elapsed_s": elapsed_s, "trials": rows}
 
 
-def _register_best(base: LearnConfig, tune: TuneCfg, best: dict) -> str:
+def _register_best(base: LearnConfig, tune: TuneCfg, best: dict, storage) -> str:
+    """Register the best trial's model under ``tune.alias``, unless the alias already names a better trial.
+
+    Workers on several machines each register at their end; one that read the study just before
+    another's last trial completed must not move the alias back to a worse trial of the study.
+    """
+    import optuna
     from mlflow import MlflowClient
 
     from workbench.learn.tracking import register_model
 
-    run = MlflowClient().get_run(best["mlflow_run_id"])
-    return register_model(run, base.tracking.registered_model, tune.alias,
+    client = MlflowClient()
+    name = base.tracking.registered_model
+    values = {t.user_attrs.get("mlflow_run_id"): t.value
+              for t in optuna.load_study(study_name=tune.study, storage=storage).get_trials(
+                  deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))}
+    try:
+        current = client.get_model_version_by_alias(name, tune.alias)
+    except Exception:  # noqa: BLE001 - no such alias (or model) yet
+        current = None
+    if current is not None and current.run_id in values and values[current.run_id] <= best["value"]:
+        return str(current.version)
+    run = client.get_run(best["mlflow_run_id"])
+    return register_model(run, name, tune.alias,
                           tags={"study": tune.study, "trial": str(best["number"]), **{
                               k: run.data.tags.get(k, "") for k in ("campaign", "variant", "git_commit", "dvc_stage")}})
 
