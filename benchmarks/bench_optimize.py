@@ -52,6 +52,7 @@ def main() -> None:
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
     from workbench.project import load_params
+    from workbench.threads import apply_torch_threads
 
     doc = load_params(args.params)
     bench = dict(doc.get("benchmark") or {})
@@ -60,8 +61,7 @@ def main() -> None:
     opt["tasks"] = {k: {**opt["tasks"][k], **v} for k, v in bench.get("tasks", {}).items()}
     opt["verify_direct"] = bench.get("verify_direct", opt.get("verify_direct", 16))
     cfg = config_from_dict(opt, args.params).with_overrides(pop_size=args.pop, n_gen=args.gens)
-    if cfg.torch_threads:
-        torch.set_num_threads(cfg.torch_threads)
+    apply_torch_threads(cfg.torch_threads)
     model = untrained_fed_lstm() if args.model == "random" else load_leg_model(args.model)
     robot = load_robot(cfg.robot)
     print(f"model {args.model!r} ({model.describe().get('variant', '?')}), torch threads {torch.get_num_threads()}, "

@@ -38,7 +38,7 @@ def main() -> int:
     ap.add_argument("--batch-size", type=int, default=256)
     ap.add_argument("--repeats", type=int, default=2, help="interleaved bare/Lightning pairs")
     ap.add_argument("--threads", type=int, default=1,
-                    help="torch threads (default 1, as trainer.torch_threads; 0: torch's default)")
+                    help="torch threads (default 1: a ratio of like with like; 0: torch's default)")
     args = ap.parse_args()
 
     import lightning.pytorch as pl

@@ -49,7 +49,9 @@ def test_two_workers_share_a_postgres_study_and_one_mlflow_server(small_processe
                        "--study", STUDY, "--storage", optuna_url, "--tracking-uri", server,
                        "--n-trials", str(TRIALS_PER_MACHINE), "--workers", "1", "--out", str(home / "tune"),
                        "--set", "trainer.max_epochs=1", "--set", "data.train_windows_per_epoch=512",
-                       "--set", "trainer.max_time_s=60"]
+                       "--set", "trainer.max_time_s=60",
+                       # two "machines" on one machine's cores: one thread each, not two each
+                       "--set", "trainer.torch_threads=1"]
                 env = {**os.environ, "WORKBENCH_HOME": str(home), "MLFLOW_TRACKING_URI": server}
                 log = open(home / "tune.log", "w")
                 procs.append((subprocess.Popen(cmd, cwd=home, env=env, stdout=log, stderr=subprocess.STDOUT),

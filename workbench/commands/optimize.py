@@ -94,10 +94,10 @@ def run(args) -> int:
     ts = cfg.task(args.task)
     robot = load_robot(args.robot or cfg.robot, drag_json=args.drag or cfg.drag_json)
     model = load_leg_model(args.model)
-    if cfg.torch_threads and "torch" in sys.modules:
-        import torch
+    if "torch" in sys.modules:  # a learned leg model
+        from workbench.threads import apply_torch_threads
 
-        torch.set_num_threads(cfg.torch_threads)
+        apply_torch_threads(cfg.torch_threads)
     label = model_label(args.model)
     info(f"optimising {args.task} gaits with leg model {args.model!r}: NSGA-II population {cfg.nsga2.pop_size}, "
          f"{cfg.nsga2.n_gen} generations, seed {cfg.nsga2.seed}, {ts.spec.cap_s:g} s swims")

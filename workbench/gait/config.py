@@ -17,6 +17,7 @@ from workbench.gait.problem import SimSettings
 from workbench.gait.run import NSGA2Settings
 from workbench.gait.space import GaitSpace
 from workbench.gait.tabulate import TabulationSettings
+from workbench.threads import check_setting
 
 _TOP_KEYS = ("robot", "drag_json", "retain", "verify_direct", "torch_threads", "space", "weights", "tasks", "nsga2", "simulation",
              "tabulation", "controller", "tracking")
@@ -55,7 +56,7 @@ class OptimizeConfig:
     retain: int = 8
     #: tabulated runs: the best this many are swum again with the direct rollout and re-ranked
     verify_direct: int = 16
-    torch_threads: int | None = None
+    torch_threads: int | str | None = "auto"
     space: GaitSpace = GaitSpace()
     tasks: Mapping[str, TaskSettings] | None = None
     nsga2: NSGA2Settings = NSGA2Settings()
@@ -106,7 +107,7 @@ def config_from_dict(doc: Mapping[str, Any], path: str | Path = "gait parameters
             tasks[name] = TaskSettings(spec, ref)
         controller = ControllerSettings(**dict(doc.get("controller") or {}))
         tracking = TrackingSettings(**dict(doc.get("tracking") or {}))
-        threads = doc.get("torch_threads")
+        threads = check_setting(doc.get("torch_threads", "auto"))
         retain = int(doc.get("retain", 8))
         verify = int(doc.get("verify_direct", 16))
         if retain < 1 or verify < 0:
@@ -114,7 +115,7 @@ def config_from_dict(doc: Mapping[str, Any], path: str | Path = "gait parameters
         return OptimizeConfig(
             robot=str(doc.get("robot", "pipelines/robot.yaml")), drag_json=doc.get("drag_json"), retain=retain,
             verify_direct=verify,
-            torch_threads=None if threads is None else int(threads), space=GaitSpace.from_dict(doc.get("space")),
+            torch_threads=threads, space=GaitSpace.from_dict(doc.get("space")),
             tasks=tasks, nsga2=NSGA2Settings.from_dict(doc.get("nsga2")),
             simulation=SimSettings.from_dict(doc.get("simulation")),
             tabulation=TabulationSettings.from_dict(doc.get("tabulation")), controller=controller, tracking=tracking)

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from workbench.errors import ContractError
+from workbench.threads import check_setting
 
 #: model variants: recurrent backbones, a window MLP, and the EF-residual hybrid
 VARIANTS = ("lstm", "gru", "mlp", "ef_residual")
@@ -77,9 +78,10 @@ class TrainerCfg:
     early_stop_patience: int = 4
     max_time_s: float | None = None
     seed: int = 0
-    #: torch intra-op threads while training (None: torch's default, one per core). One thread is
-    #: the default: on a shared 2-core machine two threads run up to 10x slower (measured, docs)
-    torch_threads: int | None = 1
+    #: torch intra-op threads while training: a number, None (torch's default, one per core) or
+    #: "auto" (the cores idle when training starts: more threads on a core another job holds run
+    #: slower than one; measured, docs/learning.md)
+    torch_threads: int | str | None = "auto"
 
 
 @dataclass(frozen=True)
@@ -121,6 +123,10 @@ class LearnConfig:
             raise ContractError(f"model.dropout {m.dropout} outside [0, 1)")
         if not 0 < o.lr_min <= o.lr_max:
             raise ContractError(f"optim.lr_min {o.lr_min} / lr_max {o.lr_max} inconsistent")
+        try:
+            check_setting(self.trainer.torch_threads)
+        except ValueError as exc:
+            raise ContractError(f"trainer.{exc}") from None
         fr = d.split.fractions
         if len(fr) != 3 or min(fr) < 0 or abs(sum(fr) - 1) > 1e-6 or fr[0] == 0:
             raise ContractError(f"data.split.fractions {list(fr)} must be three non-negative numbers summing to 1")

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from workbench.learn.config import LearnConfig
+from workbench.threads import apply_torch_threads
 
 #: extra test metrics logged per channel
 _LOG_CHANNELS = ("fx_n", "fy_n", "fz_n", "tx_nm", "ty_nm", "tz_nm")
@@ -98,10 +99,7 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
         prepared = prepare_data(read_table(cfg.data.paths), cfg.data, need_ef=hybrid)
     elif hybrid and prepared.base is None:
         prepared = prepare_data(prepared.table, cfg.data, need_ef=True, split=prepared.split)
-    if cfg.trainer.torch_threads:
-        import torch
-
-        torch.set_num_threads(int(cfg.trainer.torch_threads))
+    apply_torch_threads(cfg.trainer.torch_threads)
     pl.seed_everything(cfg.trainer.seed, workers=False, verbose=False)
     dm = WindowDataModule(prepared, cfg.data, with_base=hybrid, seed=cfg.trainer.seed)
     net = build_net(cfg.model, cfg.data.seq_len)

@@ -28,6 +28,7 @@ from typing import Any, Callable, Mapping
 
 from workbench.errors import ContractError, StageError
 from workbench.learn.config import LearnConfig, config_from_dict
+from workbench.threads import AUTO, idle_cores
 
 #: short search-parameter names -> configuration keys (any dotted key may be used directly too)
 PARAM_KEYS = {"seq_len": "data.seq_len", "hidden_size": "model.hidden_size", "num_layers": "model.num_layers",
@@ -234,6 +235,9 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
     from workbench.learn.tracking import run_tags, setup
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    if tune.workers > 1 and base.trainer.torch_threads == AUTO:
+        # the idle cores are shared out among the worker processes, not claimed by each of them
+        base = base.with_overrides({"trainer.torch_threads": max(1, idle_cores() // tune.workers)})
     storage, where = resolve_storage(tune.storage, tune.study)
     if fresh and tune.study in optuna.get_all_study_names(storage):
         optuna.delete_study(study_name=tune.study, storage=storage)
