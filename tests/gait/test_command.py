@@ -24,8 +24,12 @@ def test_optimize_writes_contract_files_and_an_mlflow_run(tmp_path, capsys):
     params = _params(tmp_path)
     out = tmp_path / "gaits"
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    drag = tmp_path / "drag.json"  # a fit-drag result of towing campaign 'tow-a' (the paper's laws)
+    drag.write_text(json.dumps({"forward": {"coefficients": [9.997, -0.132, 0.334]},
+                                "lateral": {"coefficients": [26.1, -2.14, 0.0]},
+                                "source": "datasets/processed/tow-a.parquet"}))
     rc = main(["optimize", "--task", "straight", "--model", "ef", "--params", str(params), "--out", str(out),
-               "--tracking-uri", uri])
+               "--tracking-uri", uri, "--drag", str(drag)])
     assert rc == 0
     doc = json.loads((out / "straight-ef.json").read_text())
     check_contract_gait_file(doc, "straight", "ef")
@@ -48,6 +52,7 @@ def test_optimize_writes_contract_files_and_an_mlflow_run(tmp_path, capsys):
     (run,) = client.search_runs([exp.experiment_id])
     assert run.data.tags["task"] == "straight" and run.data.tags["model"] == "ef"
     assert run.data.tags["dvc_stage"] and run.data.tags["git_commit"]
+    assert run.data.tags["campaign"] == "tow-a" and run.data.tags["kind"] == "optimize"
     hv = client.get_metric_history(run.info.run_id, "hypervolume")
     assert sorted(m.step for m in hv) == [1, 2, 3]
     assert run.data.params["nsga2.pop_size"] == "8"

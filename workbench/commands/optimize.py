@@ -141,11 +141,27 @@ def run(args) -> int:
             run_id = log_outcome(outcome, cfg.record() | {"task": args.task, "model": args.model}, folder,
                                  [gaits_path, metrics_path], model_spec=args.model,
                                  tracking_uri=args.tracking_uri or cfg.tracking.tracking_uri,
-                                 experiment=cfg.tracking.experiment)
+                                 experiment=cfg.tracking.experiment,
+                                 campaigns=_campaigns(model, args.drag or cfg.drag_json))
             info(f"MLflow run {run_id} (experiment '{cfg.tracking.experiment}')")
         except Exception as exc:  # noqa: BLE001 - the results are on disk; tracking is the side channel
             info(f"warning: MLflow logging failed ({type(exc).__name__}: {str(exc).splitlines()[0][:160]})")
     return 0
+
+
+def _campaigns(model, drag_json: str | None) -> list[str]:
+    """The campaigns behind a run: the leg model's training data and the towing campaign of the drag fit."""
+    import json
+    from pathlib import Path
+
+    ids = list(model.describe().get("campaigns") or [])
+    if drag_json:
+        try:
+            source = json.loads(Path(drag_json).read_text(encoding="utf-8")).get("source")
+        except (OSError, ValueError):
+            source = None
+        ids.append(Path(source).stem if source else Path(drag_json).parent.name)
+    return ids
 
 
 def _json(obj) -> str:

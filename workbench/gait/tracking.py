@@ -3,7 +3,8 @@
 Params: the flattened settings; metrics with steps: ``hypervolume``, ``best_score`` and
 ``evaluations`` per generation; final metrics from the outcome; artifacts: the gait file, the
 controller file, the best-8 table (CSV, and as an MLflow table), the history and the plots.
-Tags: ``task``, ``model``, ``model_spec``, ``git_commit``, ``dvc_stage``.
+Tags: ``kind`` (optimize), ``campaign`` (the campaigns behind the leg model and the body drag),
+``task``, ``model``, ``model_spec``, ``git_commit``, ``dvc_stage``.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ def _flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
 
 
 def log_outcome(outcome: GaitOutcome, settings: Mapping[str, Any], folder: Path, files: list[Path], *,
-                model_spec: str, tracking_uri: str | None, experiment: str, dvc_stage: str | None = None) -> str:
+                model_spec: str, tracking_uri: str | None, experiment: str, dvc_stage: str | None = None,
+                campaigns: list[str] | tuple[str, ...] = ()) -> str:
     """Log one optimisation as an MLflow run; returns the run id."""
     import mlflow
     from mlflow.entities import Metric, Param
@@ -36,7 +38,7 @@ def log_outcome(outcome: GaitOutcome, settings: Mapping[str, Any], folder: Path,
     from workbench.project import git_commit, setup_mlflow
 
     setup_mlflow(tracking_uri, experiment)
-    tags = {"task": outcome.task, "model": outcome.model, "model_spec": model_spec, "git_commit": git_commit(),
+    tags = {"kind": "optimize", "campaign": "+".join(dict.fromkeys(campaigns)) or "unknown", "task": outcome.task, "model": outcome.model, "model_spec": model_spec, "git_commit": git_commit(),
             "dvc_stage": dvc_stage or os.environ.get("DVC_STAGE") or "manual"}
     with mlflow.start_run(run_name=f"{outcome.task}-{outcome.model}", tags=tags) as run:
         client = mlflow.MlflowClient()
