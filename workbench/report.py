@@ -230,6 +230,50 @@ def collect(datasets: Path, tracking_uri: str | None = None, ui_url: str = "http
     return secs
 
 
+def headline(datasets: Path) -> dict:
+    """The loop's key numbers in one small file, so ``dvc metrics show/diff`` on it reads at a glance.
+
+    Each stage's own metrics file keeps everything; this picks what a researcher compares between
+    two runs of the loop: LSTM/EF held-out MSE ratios and R^2, the drag coefficients, the best
+    score per gait, pool-trial improvements of FED-LSTM over EF, and the diagnosis's error cut.
+    Missing results are left out, so the file is valid at any stage of a campaign.
+    """
+    out: dict[str, Any] = {}
+    doc = _load_json(datasets / "metrics" / "leg_models.json") or {}
+    ef, lstm = doc.get("ef", {}), doc.get("lstm", {})
+    if ef.get("mse") and lstm.get("mse"):
+        out["leg_models"] = {
+            "lstm_over_ef_mse": {ch: lstm["mse"][ch] / ef["mse"][ch] for ch in WRENCH_CHANNELS
+                                 if ef["mse"].get(ch) and ch in lstm["mse"]},
+            "r2": {m: {ch: d["r2"][ch] for ch in ("fy_n", "fz_n", "tx_nm") if ch in d.get("r2", {})}
+                   for m, d in (("ef", ef), ("lstm", lstm))}}
+    for dj in sorted((datasets / "drag").glob("*/drag.json")):
+        d = _load_json(dj) or {}
+        out.setdefault("drag", {})[dj.parent.name] = {
+            h: {"c2": d[h]["coefficients"][0], "c1": d[h]["coefficients"][1], "c0": d[h]["coefficients"][2],
+                "r2": d[h].get("r2")} for h in ("forward", "lateral") if isinstance(d.get(h), dict)}
+    for gj in sorted((datasets / "gaits").glob("*.json")):
+        d = _load_json(gj)
+        if isinstance(d, dict) and d.get("solutions"):
+            out.setdefault("gaits_best_score", {})[gj.stem] = d["solutions"][0].get("score")
+    for sj in sorted((datasets / "scores").glob("*/summary.json")):
+        comp = ((_load_json(sj) or {}).get("comparison") or {}).get("models", {})
+        for model, tasks in comp.items():
+            for task, stats in tasks.items():
+                out.setdefault("trials_mean_improvement", {}).setdefault(sj.parent.name, {})[f"{model}.{task}"] = {
+                    score: v["improvement"] for score, v in (stats.get("mean") or {}).items()
+                    if isinstance(v, dict) and "improvement" in v}
+    for dj in sorted((datasets / "diagnosis").glob("*/diagnosis.json")):
+        d = _load_json(dj) or {}
+        out.setdefault("diagnosis", {})[dj.parent.name] = {
+            "effects": len(d.get("effects", [])), "unexplained": len(d.get("unexplained", [])),
+            "mse_relative_reduction": d.get("mse_relative_reduction", {})}
+    best = (_load_json(datasets / "models" / "tune" / "best.json") or {}).get("best") or {}
+    if "value" in best:
+        out["tune_best_val_loss"] = best["value"]
+    return out
+
+
 def _rel(path: Path, out_dir: Path) -> str:
     return Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
 

@@ -200,7 +200,8 @@ def test_metrics_plots_and_experiments(project):
     files = {name for ws in metrics.values() for name in ws.get("data", {})}
     for path in ("datasets/metrics/leg_models.json", "datasets/drag/demo-towing/drag.json",
                  "datasets/scores/demo-pool/summary.json", "datasets/models/fed-lstm/metrics.json",
-                 "datasets/models/tune/best.json", f"datasets/processed/{NEW}.quality.json"):
+                 "datasets/models/tune/best.json", f"datasets/processed/{NEW}.quality.json",
+                 "datasets/reports/headline.json"):
         assert path in files, f"{path} not among dvc's metrics: {sorted(files)}"
 
     _run(["dvc", "plots", "show", "-o", "plots-out"], project)

@@ -11,9 +11,10 @@ def register(sub) -> None:
         sub, "report", help="write the final report of the whole loop (HTML + markdown)",
         description="Collect campaign quality, the drag fit, EF-vs-LSTM accuracy, the optimised gaits, "
         "pool-trial scores and the model diagnosis from datasets/ into one report with the stages' "
-        "figures and links to the MLflow runs. Sections whose results do not exist yet say so.",
+        "figures and links to the MLflow runs, and headline.json: the loop's key numbers for "
+        "`dvc metrics show/diff`. Sections whose results do not exist yet say so.",
         examples="""\
-  workbench report                                  # -> datasets/reports/report.html and report.md
+  workbench report                                  # -> datasets/reports/report.html, report.md, headline.json
   workbench report --out /tmp/rep --no-mlflow       # elsewhere, without reading the MLflow store
   xdg-open datasets/reports/report.html
 """)
@@ -39,5 +40,7 @@ def run(args) -> int:
     sections = report.collect(datasets, args.tracking_uri, args.ui_url, with_mlflow=not args.no_mlflow)
     atomic.write_text(out / "report.md", report.render_markdown(sections, out))
     atomic.write_text(out / "report.html", report.render_html(sections, out))
-    info(f"wrote {out / 'report.html'} and report.md ({sum(len(s.figures) for s in sections)} figures)")
+    atomic.write_json(out / "headline.json", report.headline(datasets))
+    info(f"wrote {out / 'report.html'}, report.md ({sum(len(s.figures) for s in sections)} figures) and "
+         "headline.json (dvc metrics show datasets/reports/headline.json)")
     return 0
