@@ -27,8 +27,10 @@ def idle_cores(sample_s: float = 0.5) -> int:
     """Cores this process may use that stood idle over the last ``sample_s`` seconds (at least 1)."""
     import psutil
 
-    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     busy = psutil.cpu_percent(interval=sample_s, percpu=True)
+    if hasattr(os, "sched_getaffinity"):  # only the cores this process may run on
+        busy = [busy[i] for i in sorted(os.sched_getaffinity(0)) if i < len(busy)] or busy
+    usable = len(busy)
     # idle capacity summed over cores, counted in whole cores that are at least 3/4 free
     free = sum(max(0.0, 1.0 - b / 100.0) for b in busy)
     return max(1, min(usable, int(free + 0.25)))

@@ -66,8 +66,10 @@ def run(args) -> int:
 
     metrics, objects = train(cfg, report=None if args.quiet else info)
     s = metrics["summary"]
+    import torch
+
     info(f"best epoch {s['best_epoch']}/{s['epochs']}: val loss {s['best_val_loss']:.4f}; "
-         f"{s['train_windows_per_s']:,.0f} training windows/s")
+         f"{s['train_windows_per_s']:,.0f} training windows/s on {torch.get_num_threads()} torch thread(s)")
     if "test" in metrics:
         ratios = "  ".join(f"{c} {s[f'test_mse_ratio_{c}']:.2f}" for c in ("fy_n", "fz_n", "tx_nm"))
         info(f"held-out test sets: MSE LSTM/EF {ratios}; R^2 " +

@@ -99,7 +99,7 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
         prepared = prepare_data(read_table(cfg.data.paths), cfg.data, need_ef=hybrid)
     elif hybrid and prepared.base is None:
         prepared = prepare_data(prepared.table, cfg.data, need_ef=True, split=prepared.split)
-    apply_torch_threads(cfg.trainer.torch_threads)
+    threads = apply_torch_threads(cfg.trainer.torch_threads)
     pl.seed_everything(cfg.trainer.seed, workers=False, verbose=False)
     dm = WindowDataModule(prepared, cfg.data, with_base=hybrid, seed=cfg.trainer.seed)
     net = build_net(cfg.model, cfg.data.seq_len)
@@ -116,7 +116,7 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
             objects["run_id"] = run.info.run_id
             mlflow.log_params({**flat_params(cfg.to_dict()), "n_train_windows": len(dm.ends["train"]),
                                "n_val_windows": len(dm.ends["val"]), "n_test_windows": len(dm.ends["test"]),
-                               "windows_per_epoch": dm.windows_per_epoch(),
+                               "windows_per_epoch": dm.windows_per_epoch(), "torch_threads_used": threads or "default",
                                **{f"n_{k}_sets": v for k, v in prepared.split.counts().items()}})
             mlflow.log_dict(prepared.split.to_dict(prepared.table), "split.json")
         log = EpochLog(cfg.trainer.max_epochs, report, mlflow_run=run is not None)
