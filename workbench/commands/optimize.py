@@ -142,19 +142,23 @@ def run(args) -> int:
                                  [gaits_path, metrics_path], model_spec=args.model,
                                  tracking_uri=args.tracking_uri or cfg.tracking.tracking_uri,
                                  experiment=cfg.tracking.experiment,
-                                 campaigns=_campaigns(model, args.drag or cfg.drag_json))
+                                 campaigns=_campaigns(model, robot.drag_source))
             info(f"MLflow run {run_id} (experiment '{cfg.tracking.experiment}')")
         except Exception as exc:  # noqa: BLE001 - the results are on disk; tracking is the side channel
             info(f"warning: MLflow logging failed ({type(exc).__name__}: {str(exc).splitlines()[0][:160]})")
     return 0
 
 
-def _campaigns(model, drag_json: str | None) -> list[str]:
-    """The campaigns behind a run: the leg model's training data and the towing campaign of the drag fit."""
+def _campaigns(model, drag_source: str) -> list[str]:
+    """The campaigns behind a run: the leg model's training data and the towing campaign of the drag fit.
+
+    ``drag_source`` is the robot's (the drag.json it loaded, from --drag or robot.yaml, else its own laws).
+    """
     import json
     from pathlib import Path
 
     ids = list(model.describe().get("campaigns") or [])
+    drag_json = drag_source if drag_source.endswith(".json") else None
     if drag_json:
         try:
             source = json.loads(Path(drag_json).read_text(encoding="utf-8")).get("source")

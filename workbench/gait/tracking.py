@@ -38,7 +38,8 @@ def log_outcome(outcome: GaitOutcome, settings: Mapping[str, Any], folder: Path,
     from workbench.project import git_commit, setup_mlflow
 
     setup_mlflow(tracking_uri, experiment)
-    tags = {"kind": "optimize", "campaign": "+".join(dict.fromkeys(campaigns)) or "unknown", "task": outcome.task, "model": outcome.model, "model_spec": model_spec, "git_commit": git_commit(),
+    tags = {"kind": "optimize", "campaign": "+".join(dict.fromkeys(campaigns)) or "unknown",
+            "task": outcome.task, "model": outcome.model, "model_spec": model_spec, "git_commit": git_commit(),
             "dvc_stage": dvc_stage or os.environ.get("DVC_STAGE") or "manual"}
     with mlflow.start_run(run_name=f"{outcome.task}-{outcome.model}", tags=tags) as run:
         client = mlflow.MlflowClient()

@@ -95,14 +95,14 @@ def register_model(run, name: str, alias: str | None, tags: Mapping[str, str] | 
     run_id = run.info.run_id
     mv = version_of_run(client, name, run_id)
     if mv is None:
-        mine = _retry_race(lambda: client.create_model_version(
+        mine = retry_race(lambda: client.create_model_version(
             name, source=f"{run.info.artifact_uri}/{MODEL_ARTIFACT}", run_id=run_id, tags=dict(tags or {})))
         # another machine may have registered the same run a moment before: keep its (older) version
         mv = version_of_run(client, name, run_id) or mine
         if mv.version != mine.version:
             client.delete_model_version(name, mine.version)
     if alias:
-        _retry_race(lambda: client.set_registered_model_alias(name, alias, mv.version))
+        retry_race(lambda: client.set_registered_model_alias(name, alias, mv.version))
     return str(mv.version)
 
 
@@ -112,21 +112,25 @@ def version_of_run(client, name: str, run_id: str):
     return min(found, key=lambda v: int(v.version)) if found else None
 
 
-def _retry_race(call, attempts: int = 6):
-    """``call()``, retried with a random back-off when the store refuses it (a concurrent writer won).
+def retry_race(call, errors: tuple[type[BaseException], ...] | None = None, attempts: int = 6):
+    """``call()``, retried with a random back-off when a shared store refuses it because a concurrent writer won.
 
     MLflow's SQL registry sets an alias by select-then-insert, so two writers of one alias can
-    both insert and one fails on the primary key; on the retry the row exists and is updated.
+    both insert and one fails on the primary key; Optuna's first schema creation on an empty
+    database races the same way. On the retry the winner's row or table exists. ``errors``
+    defaults to MLflow's exceptions.
     """
     import random
     import time
 
-    from mlflow.exceptions import MlflowException
+    if errors is None:
+        from mlflow.exceptions import MlflowException
 
+        errors = (MlflowException,)
     for attempt in range(attempts):
         try:
             return call()
-        except MlflowException:
+        except errors:
             if attempt == attempts - 1:
                 raise
             time.sleep(0.2 + random.random() * (0.5 + attempt))

@@ -83,19 +83,11 @@ def resolve_storage(storage: str | None, study: str):
     # Several machines starting on an empty database race to create Optuna's schema (PostgreSQL
     # then raises a unique violation on its enum types): whoever loses waits and retries once the
     # winner's tables exist.
-    import random
-    import time
-
     from sqlalchemy.exc import IntegrityError, ProgrammingError
 
-    for attempt in range(6):
-        try:
-            return optuna.storages.RDBStorage(storage), storage
-        except (IntegrityError, ProgrammingError):
-            if attempt == 5:
-                raise
-            time.sleep(0.5 + random.random())
-    raise AssertionError("unreachable")
+    from workbench.learn.tracking import retry_race
+
+    return retry_race(lambda: optuna.storages.RDBStorage(storage), (IntegrityError, ProgrammingError)), storage
 
 
 def suggest(trial, space: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
