@@ -110,6 +110,8 @@ class EffectReport:
     test: dict
     alternatives: list[str]
     notes: list[str] = field(default_factory=list)
+    #: effects the data cannot tell apart from this one (data contract section 4)
+    ambiguous_with: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict:
         """Contract entry plus intervals and test statistics."""
@@ -122,7 +124,7 @@ class EffectReport:
                 "heldout_mse_reduction_by_channel": {k: _num(v) for k, v in
                                                      self.heldout_mse_reduction_by_channel.items()},
                 "test": {k: _num(v) for k, v in self.test.items()}, "alternatives": self.alternatives,
-                "notes": self.notes}
+                "notes": self.notes, **({"ambiguous_with": self.ambiguous_with} if self.ambiguous_with else {})}
 
 
 @dataclass
@@ -375,14 +377,13 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
 
     say("selecting effects (held-out runs judge each candidate)")
     result = selection.select(problem, library, peaks_of=peaks_of, plausible=plausible, progress=None)
-    final = result.fit
-    config = result.config
+    say(f"{len(result.config.actives)} effect(s) claimed; errors and intervals")
+    mse_before = _heldout_mse(res_before)
+    result, effects = _enforce_claims(problem, result, base_fit, mse_before, ev_before, s, say)
+    final, config = result.fit, result.config
     res_after = run_residuals(problem, config, final)
     ev_after = analyse(res_after, s.evidence, cutoff, model_force=[r.predicted for r in res_after])
-    say(f"{len(config.actives)} effect(s) claimed; errors and intervals")
-    mse_before = _heldout_mse(res_before)
     mse_after = _heldout_mse(res_after)
-    effects = _effect_reports(problem, result, base_fit, mse_before, ev_before, s)
     for e in effects:
         if e.name == "flow_unsteadiness":
             rms, se = flow_noise_rms(res_after, flow_gains(problem, config), problem.weights)
@@ -489,10 +490,56 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
         for k in eff_coefs:
             if k in aliases:
                 notes.append(f"{k} stands for {k}{aliases[k]} (proportional sources in this model)")
+        amb = [n for n in step.ambiguous_with if n != name]
+        if amb:
+            notes.append(f"the held-out data cannot tell {name} from {', '.join(amb)} (the winner's held-out "
+                         "gain over each is not significant): the attribution is ambiguous")
         reports.append(EffectReport(name, chans, params, se, sentence, reduction,
-                                    {c: float(v) for c, v in zip(CHANNELS, by_ch, strict=False)}, test, step.alternatives, notes))
+                                    {c: float(v) for c, v in zip(CHANNELS, by_ch, strict=False)}, test,
+                                    step.alternatives, notes, amb))
         prev = f
     return reports
+
+
+def _claim_faults(rep: EffectReport, s: DiagnoseSettings) -> str | None:
+    """Why a claimed effect may not stand once its final intervals are known (None when it may)."""
+    from workbench.diagnose.selection import magnitude_intervals
+
+    spans = magnitude_intervals(rep.params, rep.stderr, s.selection.interval_z)
+    if spans and all(spans.values()):
+        return f"every magnitude parameter's 95 % interval spans zero ({', '.join(spans)})"
+    zeta = rep.params.get("zeta")
+    if rep.name == "structural_resonance" and _isnum(zeta) and zeta > s.selection.max_mode_zeta:
+        return f"zeta = {zeta:.2f} > {s.selection.max_mode_zeta:g}: a heavily damped mode is a delay"
+    return None
+
+
+def _enforce_claims(problem: Problem, result, base_fit: lsq.Fit, mse_before: dict, ev_before: Evidence,
+                    s: DiagnoseSettings, say: Callable[[str], None]):
+    """No claim without evidence: drop claimed effects whose final intervals span zero (weakest first).
+
+    Selection already refuses linear effects whose interval spans zero; searched parameters
+    (a lag's time constant, a mode's damping after the final joint refinement) get their
+    profiled errors only here. Each drop refits the remaining effects and recomputes every report.
+    """
+    while True:
+        effects = _effect_reports(problem, result, base_fit, mse_before, ev_before, s)
+        faults = {e.name: _claim_faults(e, s) for e in effects}
+        faults = {k: v for k, v in faults.items() if v}
+        if not faults:
+            return result, effects
+        worst = min((e for e in effects if e.name in faults), key=lambda e: e.heldout_mse_reduction)
+        say(f"dropped {worst.name}: {faults[worst.name]}")
+        config = result.config.without(worst.name)
+        names = [n for n in result.names if n.split(".", 1)[0] != worst.name]
+        fit = problem.fit(config, result.fit.coefs(), names)
+        steps = [st for st in result.steps if st.candidate.effect.name != worst.name]
+        table = list(result.last_table) + [{"effect": worst.name, "label": worst.name, "t": worst.test.get("t", 0.0),
+                                            "p": worst.test.get("p", 1.0), "llr": worst.test.get("llr", 0.0),
+                                            "max_gain": max(worst.heldout_mse_reduction_by_channel.values(),
+                                                            default=0.0), "ok": False,
+                                            "note": f"dropped after the final fit: {faults[worst.name]}"}]
+        result = type(result)(config, names, fit, steps, table)
 
 
 def _unexplained(ev: Evidence, effects: list[EffectReport], s: DiagnoseSettings) -> list[Unexplained]:

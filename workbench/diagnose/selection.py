@@ -55,6 +55,11 @@ class SelectionSettings:
     #: held-out gain is at least ``pair_margin`` times its better member's alone
     pairs: bool = True
     pair_margin: float = 1.5
+    #: a fitted structural mode damped more than this is a delay in disguise, not a mount mode
+    #: (mount and sting modes are lightly damped, zeta << 0.3)
+    max_mode_zeta: float = 0.3
+    #: a claim needs its 95 % interval clear of zero (z = 1.96) on at least one magnitude parameter
+    interval_z: float = 1.96
 
 
 @dataclass
@@ -96,6 +101,8 @@ class Step:
     mse_after: np.ndarray
     table: list[dict]
     alternatives: list[str]
+    #: effects the held-out data cannot tell apart from this one (winner vs runner-up not significant)
+    ambiguous_with: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -331,9 +338,13 @@ class StepwiseSelection:
                 if c.gain_c.max() < s.min_gain:
                     reasons.append(f"held-out gain {c.gain_c.max():.1%} < {s.min_gain:.0%}")
                 if not reasons:
-                    why = _implausible(c)
+                    why = _implausible(c) or _heavy_mode(c, s.max_mode_zeta)
                     if why:
                         reasons.append(f"implausible: {why}")
+                if not reasons:
+                    why = _spans_zero(c, s.interval_z)
+                    if why:
+                        reasons.append(why)
                 if not reasons and plausible is not None:
                     ok, note = plausible(c, config, current)
                     if not ok:
@@ -357,6 +368,7 @@ class StepwiseSelection:
             mine = {e.name for e in best.effects}
             alternatives = [c.label for c in cands if c is not best and not {e.name for e in c.effects} & mine
                             and c.test["llr"] >= s.ambiguity_ratio * best.test["llr"] and c.test["llr"] > 0]
+            ambiguous = self._ambiguous(best, cands, level, hac, s.alpha)
             before_c = _heldout_mse(current)
             config, names = best.config, best.names
             current = problem.fit(config, coefs, names)
@@ -364,11 +376,39 @@ class StepwiseSelection:
             for e in best.effects:
                 member = Candidate(e, Active(e, dict(best.active.nl) if e is best.effect else {}), best.config,
                                    best.names, best.fit, best.test, best.gain_c, best.profile, True, best.note)
-                steps.append(Step(member, before_c, _heldout_mse(current), table, alternatives))
+                steps.append(Step(member, before_c, _heldout_mse(current), table, alternatives,
+                                  [n for n in ambiguous if n != e.name]))
         if s.refine and any(a.effect.search for a in config.actives):
             config, current = self._refine(problem, config, coefs, names, current)
         config, names, current, steps = self._backward_check(problem, config, names, current, steps)
         return SelectionResult(config, names, current, steps, table)
+
+    def _ambiguous(self, best: Candidate, cands: list[Candidate], level: float, hac: int,
+                   separate_alpha: float) -> list[str]:
+        """Effects that explain the held-out data about as well as ``best``: the data cannot separate them.
+
+        A rival (a single effect) counts when it is significant on its own (at the step's level)
+        and ``best`` does not beat it on the held-out blocks by a one-sided paired test (its
+        held-out log-likelihood over the rival's) at ``separate_alpha``. Everything the campaign holds that separates two
+        effects (zero-flow runs, the spread of flow speeds, of gait frequencies) enters that test.
+        Per-run nuisance fits (a tone's phase) are left out: their gain is not comparable.
+        """
+        mine = {e.name for e in best.effects}
+        out: list[str] = []
+        if best.fit.grams.n_local:
+            return out
+        for c in cands:
+            names = {e.name for e in c.effects}
+            if c is best or c.partner is not None or names & mine or c.fit.grams.n_local:
+                continue
+            if c.test.get("p", 1.0) >= level or c.test["llr"] <= 0:
+                continue
+            if c.fit.sse_block_c.shape != best.fit.sse_block_c.shape:
+                continue
+            test, _ = judge(c.fit, best.fit, best.fit.grams, hac)
+            if test["p"] >= separate_alpha:
+                out += [n for n in names if n not in out]
+        return out
 
     def _backward_check(self, problem, config, names, current, steps):
         """Drop effects that no longer earn their place once the others are final (collinear partners).
@@ -458,6 +498,59 @@ def _implausible(c: Candidate) -> str | None:
         why = e.implausible({k: v for k, v in params.items() if isinstance(v, (int, float))})
         if why:
             return f"{e.name}: {why}"
+    return None
+
+
+#: canonical parameters that locate an effect rather than measure its size (their interval may hold zero)
+LOCATION_PARAMS = {"f_n_hz", "zeta", "tone_hz", "arm_m", "rms_fraction"}
+
+
+def magnitude_intervals(params: dict, stderr: dict, z: float = 1.96) -> dict[str, bool]:
+    """For each magnitude parameter with a finite error: does its interval ``value +- z se`` hold zero?"""
+    out = {}
+    for k, v in params.items():
+        if k in LOCATION_PARAMS or not isinstance(v, (int, float)) or isinstance(v, bool):
+            continue
+        se = stderr.get(k)
+        if se is None or not np.isfinite(se) or not np.isfinite(v):
+            continue
+        out[k] = abs(v) <= z * se
+    return out
+
+
+def _spans_zero(c: Candidate, z: float) -> str | None:
+    """Why a candidate is refused for an interval that spans zero (linear parameters; None when clear).
+
+    An effect is claimed only if at least one of its magnitude parameters is clear of zero;
+    the errors here are the training fit's sandwich errors (clusters = runs). Searched
+    parameters (a lag's time constant) are checked once their profiled error is known (loop).
+    """
+    cov_names = list(c.fit.names)
+    for e in c.effects:
+        if e.search:
+            continue
+        own = {k.split(".", 1)[1]: v for k, v in c.fit.coefs().items() if k.split(".", 1)[0] == e.name}
+        idx = {n.split(".", 1)[1]: i for i, n in enumerate(cov_names) if n.split(".", 1)[0] == e.name}
+        cov = {(a, b): float(c.fit.cov[i, j]) for a, i in idx.items() for b, j in idx.items()}
+        try:
+            params, se = e.canonical_params(own, {}, cov, None)
+        except (ValueError, ZeroDivisionError, KeyError):
+            continue
+        spans = magnitude_intervals(params, se, z)
+        if spans and all(spans.values()):
+            k = next(iter(spans))
+            return f"{e.name}: 95 % interval of {k} ({params[k]:.3g} +- {z * se[k]:.2g}) spans zero"
+    return None
+
+
+def _heavy_mode(c: Candidate, max_zeta: float) -> str | None:
+    """A heavily damped fitted mode is a delay in disguise (mount modes are lightly damped)."""
+    for e in c.effects:
+        if e.name == "structural_resonance" and e is c.effect:
+            zeta = c.active.nl.get("zeta")
+            if zeta is not None and zeta > max_zeta:
+                return (f"structural_resonance: zeta = {zeta:.2f} > {max_zeta:g}: a heavily damped mode is a "
+                        "delay (servo or circulatory lag), not a mount mode")
     return None
 
 
