@@ -73,3 +73,50 @@ def test_mlflow_links_cover_every_pipeline_experiment_in_flow_order(tmp_path):
     assert labels == ["fed-lstm: lstm 64x2 L32 (finished)", "fed-lstm-tune: trial 0 (finished)",
                       "optimize: straight-ef (finished)", "my-own: by hand (finished)"]
     assert all(url.startswith("http://127.0.0.1:5055/#/experiments/") for _, url in sec.links)
+
+
+def _pool_results(ds, cap_s, lstm_pred, ef_pred, lstm_times, ef_times):
+    import csv
+
+    for model in ("ef", "lstm"):
+        pred = lstm_pred if model == "lstm" else ef_pred
+        _write(ds / f"gaits/turn-{model}.json", {
+            "task": "turn", "model": model,
+            "settings": {"task": {"task": "turn", "cap_s": cap_s, "target_yaw_deg": 360.0}},
+            "solutions": [{"rank": i + 1, "params": {}, "objectives": {"f1": 0.5, "f2": 0.0, "f3": p}, "score": 1.0}
+                          for i, p in enumerate(pred)]})
+    (ds / "scores/pool").mkdir(parents=True, exist_ok=True)
+    _write(ds / "scores/pool/summary.json", {"comparison": {"models": {}}})
+    with open(ds / "scores/pool/scores.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["trial_id", "model", "solution", "task", "time_s", "mae_x_m", "radius_m", "completed"])
+        for label, times in (("FED-LSTM", lstm_times), ("EF", ef_times)):
+            for i, t in enumerate(times):
+                w.writerow([f"{label}-{i}", label, i + 1, "turn", t, "", 0.1, str(t < 60).lower()])
+
+
+def test_pool_verdict_says_why_the_lstm_gaits_lose(tmp_path):
+    ds = tmp_path / "datasets"
+    # the FED-LSTM predicted 20 s and 22 s for its gaits; they took 50 s and 60 s (unfinished) in the pool,
+    # while the EF's predictions (40 s, 44 s) were close to its pool times (41 s, 45 s)
+    _pool_results(ds, 60.0, [20.0, 22.0], [40.0, 44.0], [50.0, 60.0], [41.0, 45.0])
+    (text,) = report.pool_verdict(ds, ds / "scores/pool")
+    assert "turn: FED-LSTM gaits do not beat EF gaits" in text
+    assert "55.0 s (1/2 finished) against 43.0 s (2/2)" in text
+    assert "pool minus prediction: +34.0 s and +1.0 s" in text
+    assert "optimistic about its own gaits" in text and "optimiser found no better gait" not in text
+    md = report.render_markdown(report.collect(ds, with_mlflow=False), tmp_path / "out")
+    assert "do not beat EF gaits" in md
+
+
+def test_pool_verdict_flags_gaits_optimised_for_another_task(tmp_path):
+    ds = tmp_path / "datasets"
+    # LSTM gaits lose, and both were optimised with a 12 s cap: predictions are not comparable
+    _pool_results(ds, 12.0, [8.0, 9.0], [9.0, 10.0], [60.0, 60.0], [52.0, 58.0])
+    (text,) = report.pool_verdict(ds, ds / "scores/pool")
+    assert "do not beat" in text and "cap_s 12 instead of 60" in text
+    assert "pool minus prediction" not in text
+    # and a win on another task's gaits is reported with the caveat
+    _pool_results(ds, 12.0, [8.0, 9.0], [9.0, 10.0], [40.0, 41.0], [52.0, 58.0])
+    (text,) = report.pool_verdict(ds, ds / "scores/pool")
+    assert "gaits beat EF gaits" in text and "Caveat:" in text
