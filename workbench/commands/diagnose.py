@@ -25,6 +25,8 @@ def register(sub) -> None:
   workbench diagnose --campaign datasets/raw/tunnel-2025-03 --model augmented:datasets/diagnosis/demo-tunnel-ef \\
       --out /tmp/second-pass                       # diagnose an already augmented model again
   workbench diagnose --campaign /tmp/vl --model ef --out /tmp/d --effects servo_lag,sensor_drift --no-mlflow
+  workbench diagnose --campaign datasets/raw/tunnel-new-servo --reference datasets/raw/demo-tunnel --model ef \
+      --out /tmp/what-changed                      # only what differs from the reference campaign is named
   workbench diagnose --trials datasets/scores/demo-pool --gaits datasets/gaits --model ef --out /tmp/traj
   workbench virtual-lab tunnel /tmp/vl --truth ef --effect servo_lag:tau_s=0.04 && \\
       workbench diagnose --campaign /tmp/vl --model ef --out /tmp/vl-diag   # does it find the planted lag?
@@ -48,6 +50,10 @@ def register(sub) -> None:
                    "defaults when absent)")
     p.add_argument("--ingest-params", default="pipelines/ingest.yaml", metavar="YAML",
                    help="ingest settings for --campaign (section 'ingest'; built-in defaults when absent)")
+    p.add_argument("--reference", metavar="CAMPAIGN_OR_PROCESSED",
+                   help="a reference campaign on the same rig (raw folder or processed Parquet): the base model's "
+                   "stroke-locked misfit there (per motion parameters and flow speed) is taken out first, so only "
+                   "what changed since (a new servo, load cell, mount, pump) is diagnosed")
     p.add_argument("--effects", metavar="LIST", help="comma-separated candidate effects (default: the whole library)")
     p.add_argument("--max-runs", type=int, metavar="N", help="analyse at most N runs (whole parameter sets)")
     p.add_argument("--skip-bad-runs", action="store_true", help="ingest the good runs of a campaign with bad ones")
@@ -69,33 +75,40 @@ def _section(path: str, default_path: str, section: str) -> dict | None:
     return (doc or {}).get(section) or {}
 
 
-def _frame(args):
-    """The processed frame, the ingest's low-pass (cutoff, order) and a source label."""
+def _frame(args, path: str | None = None):
+    """The processed frame, the ingest's low-pass (cutoff, order) and a source label.
+
+    ``path``: a campaign folder or processed file instead of ``--campaign``/``--processed``.
+    """
     from pathlib import Path
 
     from workbench.errors import ContractError
 
-    if args.processed:
+    processed = args.processed if path is None else (path if Path(path).is_file() else None)
+    folder = args.campaign if path is None else (path if processed is None else None)
+    if processed:
         from workbench.ingest import read_processed, read_provenance
 
-        frame = read_processed(args.processed)
+        frame = read_processed(processed)
         try:
-            params = read_provenance(args.processed).get("params", {})
+            params = read_provenance(processed).get("params", {})
         except ContractError:
             params = {}
-        return frame, (params.get("lowpass_cutoff_hz"), params.get("lowpass_order")), str(args.processed)
+        return frame, (params.get("lowpass_cutoff_hz"), params.get("lowpass_order")), str(processed)
     from workbench.contract.campaign import load_campaign
     from workbench.ingest import ingest_campaign
 
-    campaign = load_campaign(args.campaign)
+    if not Path(folder).is_dir():
+        raise ContractError("no such campaign folder or processed file", path=folder)
+    campaign = load_campaign(folder)
     if campaign.facility != "water_tunnel":
         raise ContractError(f"diagnose needs a water-tunnel campaign, this one is {campaign.facility!r}",
                             path=campaign.manifest)
-    result = ingest_campaign(Path(args.campaign), params=_section(args.ingest_params, "pipelines/ingest.yaml",
+    result = ingest_campaign(Path(folder), params=_section(args.ingest_params, "pipelines/ingest.yaml",
                                                                    "ingest"),
                              skip_bad_runs=args.skip_bad_runs)
     rp = result.params
-    return result.frame, (rp.lowpass_cutoff_hz, rp.lowpass_order), str(args.campaign)
+    return result.frame, (rp.lowpass_cutoff_hz, rp.lowpass_order), str(folder)
 
 
 def _readable(folder) -> None:
@@ -139,10 +152,15 @@ def run(args) -> int:
     lowpass = None
     if settings.match_lowpass:
         lowpass = Lowpass(float(settings.lowpass_cutoff_hz or cutoff or 6.0), int(settings.lowpass_order or order or 4))
+    reference, ref_source = None, "reference"
+    if args.reference:
+        reference, (ref_cut, _), ref_source = _frame(args, args.reference)
+        if lowpass is not None and ref_cut is not None and abs(float(ref_cut) - lowpass.cutoff_hz) > 1e-9:
+            info(f"  note: the reference was low-passed at {ref_cut} Hz, this campaign at {lowpass.cutoff_hz} Hz")
     model = load_leg_model(args.model)
-    info(f"diagnose {args.model} on {source}")
+    info(f"diagnose {args.model} on {source}" + (f" against reference {ref_source}" if args.reference else ""))
     d = diagnose(frame, model, args.model, settings=settings, lowpass=lowpass, source=source,
-                 progress=lambda msg: info(f"  {msg}"))
+                 progress=lambda msg: info(f"  {msg}"), reference=reference, reference_source=ref_source)
     doc = d.to_json()
     doc["source"] = source
     out = Path(args.out)

@@ -167,6 +167,8 @@ class Diagnosis:
     settings: DiagnoseSettings
     runtime_s: float = 0.0
     profiles: dict = field(default_factory=dict)
+    #: what was learned on the reference campaign (``--reference``), None without one
+    reference: dict | None = None
 
     def to_json(self) -> dict:
         """``diagnosis.json`` (data contract section 4) with extra keys."""
@@ -188,6 +190,7 @@ class Diagnosis:
             "selection": [{"step": i + 1, "candidates": s.table} for i, s in enumerate(self.steps)]
             + [{"step": len(self.steps) + 1, "candidates": self.final_table, "stopped": True}],
             "runtime_s": round(self.runtime_s, 2),
+            **({"reference": self.reference} if self.reference else {}),
         }
 
 
@@ -313,13 +316,20 @@ def one_blas_thread():
 def diagnose(frame, model, model_spec: str = "model", settings: DiagnoseSettings | None = None,
              library: EffectLibrary | None = None, selection: StepwiseSelection | None = None,
              lowpass: Lowpass | None = None, progress: Callable[[str], None] | None = None,
-             source: str = "processed frame") -> Diagnosis:
-    """Diagnose ``model`` on a processed tunnel frame (contract section 3)."""
+             source: str = "processed frame", reference=None, reference_source: str = "reference") -> Diagnosis:
+    """Diagnose ``model`` on a processed tunnel frame (contract section 3).
+
+    ``reference``: the processed frame of a reference campaign on the same rig. The base
+    model's stroke-locked misfit there (``workbench.diagnose.reference``) is taken out of this
+    campaign's readings first, so that only what changed since the reference is diagnosed.
+    """
     with one_blas_thread():
-        return _diagnose(frame, model, model_spec, settings, library, selection, lowpass, progress, source)
+        return _diagnose(frame, model, model_spec, settings, library, selection, lowpass, progress, source,
+                         reference, reference_source)
 
 
-def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, progress, source) -> Diagnosis:
+def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, progress, source,
+              reference=None, reference_source="reference") -> Diagnosis:
     t_start = time.perf_counter()
     s = settings or DiagnoseSettings()
     say = progress or (lambda msg: None)
@@ -333,6 +343,16 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
             c_r = float(getattr(getattr(model, "params", None), "c_r", 0.7))
         library = default_library(list(s.library.effects) or None, s.library.link_x_m, s.library.link_quadrature, c_r)
     selection = selection or StepwiseSelection(s.selection)
+    ref_summary = None
+    if reference is not None:
+        from workbench.diagnose.reference import learn_reference
+
+        say("learning the base model's stroke-locked misfit on the reference campaign")
+        corr = learn_reference(reference, model, lowpass, s.fit, s.data, cutoff, source=reference_source)
+        campaign = corr.apply(campaign)
+        ref_summary = corr.summary()
+        say(f"reference {corr.campaign_id}: {corr.matched} runs matched exactly, {corr.nearest} by nearest "
+            "parameters; diagnosing what changed")
     say(f"{len(campaign.runs)} runs ({int(campaign.heldout.sum())} held out); fitting the model's residual")
     problem = Problem(campaign, model, lowpass, s.fit)
     base_fit = problem.fit(Configuration(), names=[])
@@ -402,7 +422,8 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
         evidence_after=ev_after, residuals_before=res_before, residuals_after=res_after, steps=result.steps,
         final_table=result.last_table, heldout_runs=campaign.run_ids(True), train_runs=campaign.run_ids(False),
         settings=s, runtime_s=time.perf_counter() - t_start,
-        profiles={st.candidate.effect.name: st.candidate.profile for st in result.steps if st.candidate.profile})
+        profiles={st.candidate.effect.name: st.candidate.profile for st in result.steps if st.candidate.profile},
+        reference=ref_summary)
 
 
 def flow_noise_rms(runs, gains, weights) -> tuple[float | None, float]:
