@@ -51,12 +51,39 @@ class PoseSeries:
         return out[0], out[1], out[2]
 
 
-def start_heading(pose: PoseSeries, start_s: float, before_s: float, after_s: float) -> float:
-    """Heading at ``start_s`` from a quadratic fit to the kept raw headings around it (NaN if too few).
+def _lstsq_cov(a: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares coefficients and their covariance, allowing for serially correlated errors.
+
+    The residual variance is inflated by ``(1 + rho) / (1 - rho)`` for the residuals' lag-1
+    autocorrelation ``rho`` (clipped to [0, 0.9]): video-compression errors of a slow marker
+    persist over frames, and an iid standard error would call noise a kink.
+    """
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    resid = y - a @ coef
+    rss = float(resid @ resid)
+    dof = max(len(y) - a.shape[1], 1)
+    rho = float(resid[1:] @ resid[:-1]) / rss if rss > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.9)
+    cov = np.linalg.pinv(a.T @ a) * (rss / dof) * (1 + rho) / (1 - rho)
+    return coef, cov
+
+
+def start_heading(pose: PoseSeries, start_s: float, before_s: float, after_s: float, *,
+                  kink_sigmas: float = 4.0) -> float:
+    """Heading at ``start_s`` from a fit to the kept raw headings around it (NaN if too few).
 
     The robot rests or moves slowly there, so video-compression errors of the marker centroids
     change little from frame to frame and a short smoothing window cannot average them out; a
     fit over a few seconds can.
+
+    The gait starts at ``start_s``, so the heading's *rate* may jump there (a turn starting at
+    full rate): the heading is continuous but kinked. One polynomial across the kink is biased
+    (a quadratic over [-1 s, +2 s] reads a step to rate w as 0.16 s x w, i.e. a 360 degree turn
+    scored 0.16 s late, whatever w). Two fits are made: a quadratic across ``start_s``, and a
+    model continuous at ``start_s`` with its own shape on each side (linear before, cubic after).
+    The kinked model is used when the heading rate changes at ``start_s`` by more than
+    ``kink_sigmas`` standard errors (measured with constant rates either side), the smooth one
+    otherwise (it averages the noise better, about 1.7 times: straight runs).
     """
     d = pose.head_m - pose.tail_m
     ok = pose.detected & (pose.t_s >= start_s - before_s) & (pose.t_s <= start_s + after_s)
@@ -68,7 +95,22 @@ def start_heading(pose: PoseSeries, start_s: float, before_s: float, after_s: fl
     ang = ref + (ang - ref + np.pi) % (2 * np.pi) - np.pi
     tt = pose.t_s[ok] - start_s
     order = 2 if np.ptp(tt) > 0.5 else 0
-    return float(np.polyval(np.polyfit(tt, ang, order), 0.0))
+    smooth = float(np.polyval(np.polyfit(tt, ang, order), 0.0))
+    pre, post = tt[tt < 0], tt[tt >= 0]
+    if pre.size < 4 or post.size < 6 or np.ptp(pre) < 0.25 or np.ptp(post) < 0.5:
+        return smooth
+    tm, tp = np.minimum(tt, 0.0), np.maximum(tt, 0.0)
+    # is there a kink? constant rates either side of start_s (over at most 1 s after it): a few
+    # parameters, so the rate change is measured precisely; a gradual ramp also shows as one
+    near = tt <= min(1.0, after_s)
+    coef, cov = _lstsq_cov(np.column_stack([np.ones_like(tt), tm, tp])[near], ang[near])
+    g = np.array([0.0, -1.0, 1.0])
+    jump, se = float(g @ coef), float(np.sqrt(max(g @ cov @ g, 0.0)))
+    if not (se > 0 and abs(jump) > kink_sigmas * se):
+        return smooth
+    # kinked: continuous at start_s, linear before, cubic after
+    coef, _ = _lstsq_cov(np.column_stack([np.ones_like(tt), tm, tp, tp**2, tp**3]), ang)
+    return float(coef[0])
 
 
 def _odd(n: float) -> int:
