@@ -28,6 +28,7 @@ VERB_MODULES = (
     "tune",
     "evaluate",
     "optimize",
+    "sensitivity",
     "score_trials",
     "diagnose",
     "report",

@@ -1,0 +1,66 @@
+"""Sensitivity study (issue 14, part 4): factors reach the robot, convergence is checked, indices come out."""
+
+import numpy as np
+import pytest
+
+from workbench.errors import DataError
+from workbench.gait.objectives import TaskSpec
+from workbench.gait.sensitivity import FACTORS, Factor, robot_with, run_sensitivity
+from workbench.hydro.legmodel import load_leg_model
+from workbench.hydro.robot import RobotParams
+from workbench.hydro.simulator import GaitBatch
+
+GAITS = GaitBatch.from_params([
+    {"theta_h_min_deg": 9.4, "theta_k_max_deg": -23.2, "frequency_hz": 0.6, "alpha_rad": [5.95, 4.05, 3.32, 4.89]},
+    {"theta_h_min_deg": -20.0, "theta_k_max_deg": -50.0, "frequency_hz": 0.5, "alpha_rad": [0.0, 3.1, 0.0, 3.1]},
+    {"theta_h_min_deg": 0.0, "theta_k_max_deg": -30.0, "frequency_hz": 0.4, "alpha_rad": [0.0, 1.0, 2.0, 3.0]},
+])
+
+
+def test_robot_with_sets_the_constants_and_makes_low_speed_drag_linear():
+    base = RobotParams()
+    r = robot_with(base, {"yaw_inertia_kgm2": 0.04, "extra_yaw_damping_nms": 0.01, "drag_linear_below_mps": 0.08})
+    assert r.yaw_inertia_kgm2 == 0.04 and r.extra_yaw_damping_nms == 0.01
+    c2, c1, _ = base.forward_drag.coefficients
+    # in range the nominal law (drop_intercept: c2 v^2 + c1 v); below 0.08 m/s linear to zero through it
+    assert r.forward_drag.magnitude(0.2) == pytest.approx(c2 * 0.04 + c1 * 0.2)
+    assert r.forward_drag.magnitude(0.04) == pytest.approx((c2 * 0.0064 + c1 * 0.08) / 2)
+    assert r.forward_drag.magnitude(0.0) == 0.0
+    # the low end of the range is the nominal robot
+    r0 = robot_with(base, {"drag_linear_below_mps": 0.001})
+    v = np.linspace(0.002, 0.35, 50)
+    assert np.allclose(r0.forward_drag.magnitude(v), base.forward_drag.magnitude(v))
+    assert np.allclose(r0.lateral_drag.magnitude(v), base.lateral_drag.magnitude(v))
+    assert r.added_mass_lateral_kg == base.added_mass_lateral_kg
+
+
+def test_sobol_study_finds_the_only_factor_that_matters():
+    # two factors: yaw damping (moves a turn) and a dummy on the forward added mass over a range too
+    # narrow to matter; the turn score must owe its variance to the damping
+    factors = (Factor("extra_yaw_damping_nms", 0.0, 0.05, "N m s", "test"),
+               Factor("added_mass_forward_kg", 0.2, 0.2001, "kg", "test"))
+    spec = TaskSpec("turn", cap_s=3.0, target_yaw_deg=90.0)
+    res = run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotParams(), spec, n=16,
+                          settings={"dt_s": 1 / 65, "relaxation": 0.6}, factors=factors)
+    assert res.scores.shape == (16 * 4, 3)
+    assert not res.unconverged
+    d = res.to_dict()
+    for lab in ("a", "b", "c"):
+        st = d["indices"][lab]["total_order"]
+        assert st["extra_yaw_damping_nms"] > 0.7
+        assert st["added_mass_forward_kg"] < 0.1
+    assert -1.0 <= d["ranking"]["kendall_tau_min"] <= 1.0
+
+
+def test_power_of_two_required():
+    with pytest.raises(DataError, match="power of 2"):
+        run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotParams(), TaskSpec("turn", cap_s=1.0,
+                        target_yaw_deg=90.0), n=6)
+
+
+def test_factor_ranges_contain_the_nominal_robot():
+    base = RobotParams()
+    for f in FACTORS:
+        if hasattr(base, f.name):  # drag_linear_below_mps: its low end is the nominal law (tested above)
+            assert f.low <= getattr(base, f.name) <= f.high, f.name
+    assert np.all([f.low < f.high for f in FACTORS])
