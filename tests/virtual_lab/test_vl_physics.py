@@ -59,8 +59,10 @@ def test_ef_truth_is_exactly_the_ef():
 def test_ef_captures_the_trend_of_the_rich_truth(demo_cases):
     for u, (truth, ef, _, _) in demo_cases.items():
         r2 = 1 - ((truth - ef) ** 2).sum(0) / ((truth - truth.mean(0)) ** 2).sum(0)
-        assert r2[1] >= 0.6 and r2[2] >= 0.6, (u, r2)
-        assert r2[3] >= 0.5, (u, r2)
+        # with the rotating-plate added mass (m_a omega v_t, which the EF lacks) the EF's R^2 is
+        # 0.53-0.76 (fy), 0.46-0.71 (fz), 0.63-0.86 (tx) over 0-0.3 m/s: still the trend
+        assert r2[1] >= 0.45 and r2[2] >= 0.4, (u, r2)
+        assert r2[3] >= 0.55, (u, r2)
 
 
 def test_ef_misses_by_far_more_than_the_filtered_noise(demo_cases):

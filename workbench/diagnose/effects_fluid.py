@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from workbench.diagnose.flowterms import first_order_lag
+from workbench.hydro.ef import force_at_point_to_wrench
 from workbench.diagnose.library import ALL_CHANNELS, Context, Effect, SearchParam, Terms
 
 
@@ -132,4 +133,223 @@ class CirculatoryLag(Effect):
         return Terms(fixed=kin.normal_wrench(lagged - f_d))
 
 
-FLUID_EFFECTS = (AddedMassError, DragCoefficientError, LinkDrag, Lift, LegWeightBuoyancy, CirculatoryLag)
+class NormalForceLaw(Effect):
+    """Post-stall normal-force law of the rotating web: dF_n = c_n90 * 0.5 rho L int |V(s)| V_n(s) ds.
+
+    A flat plate's normal force grows as ``C_N90 sin(alpha)`` (``|V| V_n``), not as the EF's
+    ``sin^2(alpha)`` (``|V_n| V_n``); strip theory over the chord with the web's rotation
+    (``V(s) = V_Q - omega s n``) also moves the centre of pressure, a couple about Q. Linear in
+    ``c_n90``, added beside the model's own drag: with the EF, ``drag_coefficient_error``
+    beside it (``delta_c`` near ``-C_R``) says the EF's drag law is replaced by this one.
+    """
+
+    name = "normal_force_law"
+    ranges = {"c_n90": (-1.0, 2.5)}
+    formula = "dF_n = c_n90 0.5 rho L int |V(s)| V_n(s) ds over the chord (+ its couple about Q)"
+
+    def __init__(self, quadrature: int = 5):
+        self.quadrature = int(quadrature)
+
+    def linear_names(self):  # noqa: D102
+        return ["c_n90"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        kin = ctx.kin
+        col = kin._memo(("nlaw_w", self.quadrature), lambda: kin.normal_law_wrench(*kin.normal_law(self.quadrature)))
+        return Terms(["c_n90"], [col], [ALL_CHANNELS])
+
+
+class WagnerLag(Effect):
+    """Unsteady circulatory lag of the whole normal force: two time scales, free amplitudes.
+
+    The indicial (Wagner) response of a plate in R. T. Jones' two-state form,
+    ``F_lagged = F - a_slow (F - L_slow F) - a_fast (F - L_fast F)``, where ``F`` is the
+    normal-force law per unit coefficient (:class:`NormalForceLaw`'s column: force at Q and its
+    couple) and ``L_i`` a first-order lag of time constant ``tau_i c / max(|V_rel|, floor)``
+    (convective time, chord c = 0.06 m). Jones' time constants, ``c / (2 b_i V)`` with ``b =
+    0.0455, 0.3``, are ``tau = 10.99`` and ``1.667`` chords; a common ``time_scale`` multiplies
+    both (searched, 1-D: well conditioned), the amplitudes are linear (units of the normal-force
+    coefficient: Jones' 0.165 and 0.335 times C_N90). The term added is
+    ``a_slow (L_slow F - F) + a_fast (L_fast F - F)``.
+    """
+
+    name = "wagner_lag"
+    ranges = {"a_slow": (-0.2, 1.5), "a_fast": (-0.2, 1.5), "time_scale": (0.1, 10.0)}
+    formula = ("dF = sum_i a_i (L_i F_N - F_N), L_i first-order lags of tau_i c / max(|V_rel|, 0.05), "
+               "tau = time_scale (10.99, 1.667) chords; F_N the normal-force law")
+    search = (SearchParam("time_scale", (0.3, 0.6, 1.2, 2.4, 4.8), (0.05, 20.0), log=True),)
+    #: Jones' time constants in chords, c / (2 b_i c / c): 1 / (2 * 0.0455) and 1 / (2 * 0.3)
+    JONES_CHORDS = (1.0 / (2 * 0.0455), 1.0 / (2 * 0.3))
+
+    def __init__(self, chord_m: float = 0.06, speed_floor_mps: float = 0.05, quadrature: int = 5):
+        self.chord_m = float(chord_m)
+        self.floor = float(speed_floor_mps)
+        self.quadrature = int(quadrature)
+
+    def linear_names(self):  # noqa: D102
+        return ["a_slow", "a_fast"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        kin = ctx.kin
+        f, m = kin.normal_law(self.quadrature)
+        fm = np.stack([f, m], axis=-1)
+        speed = np.maximum(kin.speed, self.floor)
+        cols = []
+        for tau in self.JONES_CHORDS:
+            lagged = first_order_lag(fm, speed / (tau * nl["time_scale"] * self.chord_m), ctx.dt_s)
+            cols.append(kin.normal_law_wrench(lagged[..., 0] - f, lagged[..., 1] - m))
+        return Terms(["a_slow", "a_fast"], cols, [ALL_CHANNELS, ALL_CHANNELS])
+
+    def canonical_params(self, coefs, nl, cov, local=None):  # noqa: D102
+        params, se = super().canonical_params(coefs, nl, cov, local)
+        k, k_se = nl.get("time_scale", float("nan")), se.get("time_scale", float("nan"))
+        for key, tau in zip(("tau_slow_chords", "tau_fast_chords"), self.JONES_CHORDS, strict=True):
+            params[key] = tau * k
+            se[key] = tau * k_se
+        return params, se
+
+
+class RotatingAddedMass(Effect):
+    """The rotating-plate part of the added-mass force: dF_n = -m_a_kg omega v_t.
+
+    A plate's added-mass force is ``-m_a d/dt(v_n)`` with ``v_n`` its normal velocity relative
+    to the water. The normal turns with the web (``dn/dt = -omega t``), so ``d/dt(v_n) = a_n +
+    omega v_t``: the EF keeps ``a_n`` only. ``m_a_kg`` is the plate's added mass (DNV flat plate
+    ``rho 0.579 (pi/4) L^3`` = 98 g), independent of what the model puts on ``a_n``.
+    """
+
+    name = "rotating_added_mass"
+    ranges = {"m_a_kg": (-0.1, 0.5)}
+    formula = "dF_n = -m_a_kg omega v_t (web rate x tangential relative velocity)"
+
+    def linear_names(self):  # noqa: D102
+        return ["m_a_kg"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        kin = ctx.kin
+        return Terms(["m_a_kg"], [kin._memo(("rot",), lambda: kin.normal_wrench(-kin.omega_v_t))], [ALL_CHANNELS])
+
+
+class AddedMassKC(Effect):
+    """Added mass growing with the Keulegan-Carpenter number: dF_n = -m_kc_kg KC^p d/dt(v_n).
+
+    ``KC = 2 pi A / L`` per run (A half the diagonal of Q's path's bounding box, L the web
+    side), ``p = 2/3`` (the usual fitted form, field notes); ``d/dt(v_n) = a_rel,n + omega v_t``
+    (the rotating plate's full normal acceleration relative to the water). With a base added
+    mass ``m_a``, ``m_kc_kg / m_a`` is the KC gain.
+    """
+
+    name = "added_mass_kc"
+    ranges = {"m_kc_kg": (-0.1, 0.2)}
+    formula = "dF_n = -m_kc_kg KC^(2/3) (a_n + omega v_t), KC = 2 pi A / L per run"
+
+    def __init__(self, exponent: float = 2.0 / 3.0):
+        self.exponent = float(exponent)
+
+    def linear_names(self):  # noqa: D102
+        return ["m_kc_kg"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        kin = ctx.kin
+        col = kin._memo(("amkc", self.exponent), lambda: kin.normal_wrench(
+            -(kin.kc ** self.exponent) * (kin.rel_acc_n + kin.omega_v_t)))
+        return Terms(["m_kc_kg"], [col], [ALL_CHANNELS])
+
+
+class LinkInertia(Effect):
+    """Inertia of the links and the web's tangential inertia: -m a along thigh and calf, -m_t a_t at Q.
+
+    ``m_kgpm``: mass per length of thigh and calf (structure plus added mass; at this rig's
+    magnitudes the data cannot tell the added part, which acts along the normal only, from the
+    structural one) times each Gauss point's acceleration; ``web_t_kg``: the web's own mass
+    along its tangent, which a model with a purely normal force (the EF) omits.
+    """
+
+    name = "link_inertia"
+    ranges = {"m_kgpm": (-0.1, 1.0), "web_t_kg": (-0.05, 0.2)}
+    formula = "dF = -m_kgpm a dl along thigh and calf; dF_t = -web_t_kg a_t at Q"
+
+    def __init__(self, x_m: float = 0.01, quadrature: int = 4):
+        self.x_m = float(x_m)
+        self.quadrature = int(quadrature)
+
+    def linear_names(self):  # noqa: D102
+        return ["m_kgpm", "web_t_kg"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        kin = ctx.kin
+
+        def links():
+            _added, thigh, calf = kin.link_inertia_units(self.x_m, self.quadrature)
+            lengths = kin.link_lengths()
+            return thigh * lengths["thigh"] + calf * lengths["calf"]
+
+        def web():
+            st = kin.state
+            a_t = (st.q_acc * st.tangent).sum(-1)
+            return force_at_point_to_wrench(-a_t[..., None] * st.tangent, st.q, kin.geometry.web_offset_x_m)
+
+        return Terms(["m_kgpm", "web_t_kg"], [kin._memo(("linkm", self.x_m, self.quadrature), links),
+                                              kin._memo(("webt",), web)], [ALL_CHANNELS, ALL_CHANNELS])
+
+
+class LateralForce(Effect):
+    """Spanwise (lateral, fx) force of the finite web: fx = c_lat 0.5 rho S |V| V_n at Q.
+
+    A square web's tip flow pushes it sideways in proportion to its normal load; the EF has no
+    fx at all. Linear in ``c_lat`` (a fraction of the normal force times its coefficient).
+    """
+
+    name = "lateral_force"
+    ranges = {"c_lat": (-0.5, 0.5)}
+    formula = "fx = c_lat 0.5 rho S |V| V_n at Q (ty, tz from its arm)"
+
+    def linear_names(self):  # noqa: D102
+        return ["c_lat"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        kin = ctx.kin
+
+        def make():
+            f, _m = kin.normal_law()
+            q = kin.state.q
+            out = np.zeros(f.shape + (6,))
+            out[..., 0] = f
+            out[..., 4] = q[..., 1] * f
+            out[..., 5] = -q[..., 0] * f
+            return out
+
+        return Terms(["c_lat"], [kin._memo(("lateral",), make)], [ALL_CHANNELS])
+
+
+class LinkWeightBuoyancy(Effect):
+    """Weight minus buoyancy spread over thigh, calf (evenly along each) and web (at Q): net_<part>_n, + up."""
+
+    name = "link_weight_buoyancy"
+    ranges = {"net_thigh_n": (-2.0, 2.0), "net_calf_n": (-2.0, 2.0), "net_web_n": (-2.0, 2.0)}
+    formula = "vertical net_<part>_n spread along thigh and calf, at Q for the web"
+
+    def __init__(self, x_m: float = 0.01, quadrature: int = 4):
+        self.x_m = float(x_m)
+        self.quadrature = int(quadrature)
+
+    def linear_names(self):  # noqa: D102
+        return ["net_thigh_n", "net_calf_n", "net_web_n"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        cols = ctx.kin.spread_weight_units(self.x_m, self.quadrature)
+        sup = np.array([False, False, True, True, True, False])  # a vertical load: fz, tx, ty
+        return Terms(self.linear_names(), list(cols), [sup, sup, sup])
+
+    def canonical_params(self, coefs, nl, cov, local=None):  # noqa: D102
+        params, se = super().canonical_params(coefs, nl, cov, local)
+        names = self.linear_names()
+        params["net_n"] = float(sum(coefs.get(n, 0.0) for n in names))
+        var = sum(cov.get((a, b), 0.0) for a in names for b in names)
+        se["net_n"] = float(np.sqrt(max(var, 0.0))) if all((n, n) in cov for n in names) else float("nan")
+        return params, se
+
+
+FLUID_EFFECTS = (AddedMassError, DragCoefficientError, LinkDrag, Lift, LegWeightBuoyancy, CirculatoryLag,
+                 NormalForceLaw, WagnerLag, RotatingAddedMass, AddedMassKC, LinkInertia, LateralForce,
+                 LinkWeightBuoyancy)

@@ -81,9 +81,81 @@ class LegKinematics:
         """Normal component of Q's acceleration."""
         return _dot(self.state.q_acc, self.state.normal)
 
+    @cached_property
+    def water_acc(self) -> np.ndarray:
+        """The water's acceleration (B, T, 2): -dU/dt along X (zero in a steady tunnel)."""
+        u = np.asarray(self.motion.flow_speed_mps, float)
+        du = np.zeros_like(u)
+        if u.shape[1] > 2 and np.ptp(u, axis=1).max() > 0:
+            du = np.gradient(u, self.motion.dt_s, axis=1, edge_order=2)
+        return np.stack([-du, np.zeros_like(du)], axis=-1)
+
+    @cached_property
+    def rel_acc_n(self) -> np.ndarray:
+        """Normal component of Q's acceleration relative to the water."""
+        return _dot(self.state.q_acc - self.water_acc, self.state.normal)
+
+    @cached_property
+    def omega_v_t(self) -> np.ndarray:
+        """The rotating-plate part of d/dt(v_n): web rate times the tangential relative velocity.
+
+        With ``n = -(-sin psi, cos psi)`` the normal turns as ``dn/dt = -omega t``, so
+        ``d/dt((v_Q - u) . n) = (a_Q - du/dt) . n + omega ((u - v_Q) . t) = rel_acc_n + omega v_t``.
+        """
+        return self.state.web_rate * self.v_t
+
+    @cached_property
+    def web_acc(self) -> np.ndarray:
+        """The web's angular acceleration (rad/s^2)."""
+        return self.ah + self.ak
+
+    @cached_property
+    def kc(self) -> np.ndarray:
+        """Keulegan-Carpenter number per run (B, 1): KC = 2 pi A / L, A half the diagonal of Q's path box.
+
+        The box of Q's path does not change when a run is padded with its edge poses, so KC is
+        a property of the run, not of the batch it sits in.
+        """
+        q = self.state.q
+        amp = 0.5 * np.hypot(np.ptp(q[..., 0], axis=1), np.ptp(q[..., 1], axis=1))[:, None]
+        return 2 * np.pi * amp / self.geometry.web_side_m
+
     def normal_wrench(self, f_n: np.ndarray) -> np.ndarray:
         """A force ``f_n`` along the web normal at Q as a load-cell wrench."""
         return web_normal_force_to_wrench(f_n, self.state, self.geometry)
+
+    def couple_wrench(self, m_x: np.ndarray) -> np.ndarray:
+        """A pure in-plane couple (about the load cell's +x, the leg plane's normal) as a wrench."""
+        out = np.zeros(m_x.shape + (6,))
+        out[..., 3] = m_x
+        return out
+
+    def normal_law(self, quadrature: int = 5) -> tuple[np.ndarray, np.ndarray]:
+        """Post-stall normal-force law of the rotating web per unit coefficient: (force at Q, couple about Q).
+
+        Strip theory over the chord: ``f(s) = 0.5 rho L |V(s)| V_n(s)`` per unit chord with
+        ``V(s) = V_Q - omega s n`` (the web turns at omega about Q), i.e. ``C_N = C_N90 sin(alpha)``
+        locally; integrated with Gauss points, which also gives the centre of pressure's couple.
+        """
+        def make():
+            side = self.geometry.web_side_m
+            n = self.state.normal
+            xs, ws = np.polynomial.legendre.leggauss(quadrature)
+            f = np.zeros(n.shape[:-1])
+            m = np.zeros(n.shape[:-1])
+            for x, w in zip(xs * side / 2, ws * side / 2, strict=True):
+                rel = self.rel - (self.state.web_rate * x)[..., None] * n
+                fs = 0.5 * self.rho * side * np.hypot(rel[..., 0], rel[..., 1]) * _dot(rel, n)
+                f += w * fs
+                m += w * x * fs
+            return np.stack([f, m], axis=-1)
+
+        fm = self._memo(("nlaw", quadrature), make)
+        return fm[..., 0], fm[..., 1]
+
+    def normal_law_wrench(self, f: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """A normal force at Q with its couple (from :meth:`normal_law`) as a wrench."""
+        return self.normal_wrench(f) + self.couple_wrench(m)
 
     # --------------------------------------------------------------- unit columns
     def added_mass_unit(self) -> np.ndarray:
@@ -130,6 +202,71 @@ class LegKinematics:
             f = (0.5 * self.rho * np.abs(v_n) * v_n * dl)[..., None] * nrm
             out += force_at_point_to_wrench(f, pos, x_m)
         return out
+
+    def link_inertia_units(self, x_m: float = 0.01, quadrature: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unit wrenches of the links' inertia: (added mass per length, thigh mass, calf mass).
+
+        Added mass (kg/m) acts on each point's acceleration relative to the water along the
+        link's normal; a link's structural mass (kg, spread evenly along it) on the point's whole
+        acceleration. Each is ``-m a`` at the Gauss points, ``x_m`` off the hip axis.
+        """
+        return self._memo(("linkinertia", x_m, quadrature), lambda: self._link_inertia(x_m, quadrature))
+
+    def link_accelerations(self, quadrature: int = 4):
+        """Gauss points of thigh and calf with their accelerations: (position, acceleration, normal, dl, link)."""
+        g, st = self.geometry, self.state
+        c_acc = self.ah[..., None] * _perp(st.c) - (self.wh ** 2)[..., None] * st.c
+        wpsi, apsi = self.wh + self.wk, self.ah + self.ak
+        a_acc = apsi[..., None] * _perp(st.a) - (wpsi ** 2)[..., None] * st.a
+        points = list(self.link_points(quadrature))
+        xs, _ = np.polynomial.legendre.leggauss(quadrature)
+        s01 = (xs + 1) / 2
+        calf_len = g.bq_over_bc * g.bc_m - g.web_side_m / 2
+        kappa_end = 1.0 - calf_len / g.oa_m
+        for i, (pos, _vel, nrm, dl) in enumerate(points):
+            if i < quadrature:
+                yield pos, s01[i] * c_acc, nrm, dl, "thigh"
+            else:
+                kap = 1.0 + s01[i - quadrature] * (kappa_end - 1.0)
+                yield pos, c_acc + kap * a_acc, nrm, dl, "calf"
+
+    def link_lengths(self) -> dict[str, float]:
+        """Wetted lengths of thigh (O-C) and calf (B to the web's near edge)."""
+        g = self.geometry
+        return {"thigh": g.oc_m, "calf": g.bq_over_bc * g.bc_m - g.web_side_m / 2}
+
+    def _link_inertia(self, x_m: float, quadrature: int):
+        shape = self.state.q.shape[:-1] + (6,)
+        added, thigh, calf = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+        lengths = self.link_lengths()
+        for pos, acc, nrm, dl, link in self.link_accelerations(quadrature):
+            a_n = _dot(acc - self.water_acc, nrm)
+            added += force_at_point_to_wrench(-(a_n * dl)[..., None] * nrm, pos, x_m)
+            own = force_at_point_to_wrench(-acc * (dl / lengths[link]), pos, x_m)
+            if link == "thigh":
+                thigh += own
+            else:
+                calf += own
+        return added, thigh, calf
+
+    def spread_weight_units(self, x_m: float = 0.01, quadrature: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unit wrenches of a vertical net load (+ up, weight minus buoyancy, per N): (thigh, calf, web).
+
+        Thigh and calf loads are spread evenly along them (Gauss points ``x_m`` off the hip
+        axis); the web's acts at Q (``web_offset_x_m`` off the axis).
+        """
+        def make():
+            shape = self.state.q.shape[:-1]
+            lengths = self.link_lengths()
+            out = {"thigh": np.zeros(shape + (6,)), "calf": np.zeros(shape + (6,))}
+            up = np.zeros(shape + (2,))
+            up[..., 1] = 1.0
+            for pos, _acc, _nrm, dl, link in self.link_accelerations(quadrature):
+                out[link] += force_at_point_to_wrench(up * (dl / lengths[link]), pos, x_m)
+            web = force_at_point_to_wrench(up, self.state.q, self.geometry.web_offset_x_m)
+            return np.stack([out["thigh"], out["calf"], web])
+
+        return tuple(self._memo(("spreadweight", x_m, quadrature), make))
 
     def point_load_units(self) -> tuple[np.ndarray, np.ndarray]:
         """Unit wrenches of a vertical load: (per N of net_n at the hip, per N m of net_n * arm_m).

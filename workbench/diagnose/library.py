@@ -243,6 +243,14 @@ def effect_options(effect: Effect) -> dict:
         return {"x_m": effect.x_m, "quadrature": effect.quadrature}
     if effect.name == "circulatory_lag":
         return {"c_r": effect.c_r, "chord_m": effect.chord_m, "speed_floor_mps": effect.floor}
+    if effect.name == "wagner_lag":
+        return {"chord_m": effect.chord_m, "speed_floor_mps": effect.floor, "quadrature": effect.quadrature}
+    if effect.name in ("link_inertia", "link_weight_buoyancy"):
+        return {"x_m": effect.x_m, "quadrature": effect.quadrature}
+    if effect.name == "normal_force_law":
+        return {"quadrature": effect.quadrature}
+    if effect.name == "added_mass_kc":
+        return {"exponent": effect.exponent}
     return {}
 
 
@@ -264,6 +272,7 @@ def default_library(names: list[str] | None = None, link_x_m: float = 0.01, link
     """The documented library (docs/diagnose.md), optionally restricted to ``names``."""
     reg = registry()
     names = list(reg) if not names else list(names)
-    opts = {"link_drag": {"x_m": link_x_m, "quadrature": link_quadrature},
+    links = {"x_m": link_x_m, "quadrature": link_quadrature}
+    opts = {"link_drag": links, "link_inertia": links, "link_weight_buoyancy": links,
             "circulatory_lag": {"c_r": circulatory_c_r}}
     return EffectLibrary([make_effect(n, opts.get(n)) for n in names])

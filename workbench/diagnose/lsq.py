@@ -67,13 +67,23 @@ def accumulate(design, rs, blocks, shared_names: list[str] | None = None) -> Gra
     r = resid[idx] * wmask                     # (nb, L, 6)
     yy = np.einsum("nlc,nlc->nc", r, r)
     loc = [c.reshape(b_ * t_, 6)[idx] * wmask for c in design.local]  # each (nb, L, 6)
+    # every shared column gathered once for all channels (a gather per channel and column costs
+    # six times as much), as (nb, L, 6, k)
+    used = [i for i, n in enumerate(names) if n in pos]
+    if used:
+        flat = np.stack([design.cols[pos[names[i]]].reshape(b_ * t_, 6) for i in used], axis=-1)
+        gathered = flat[idx] * wmask[..., None]
+    col_of = {i: j for j, i in enumerate(used)}
     chan_cols, G, bvec = [], [], []
     for c in range(6):
-        cols = [i for i, n in enumerate(names) if n in pos and design.support[pos[n]][c]]
-        xs = [design.cols[pos[names[i]]].reshape(b_ * t_, 6)[idx, c] * wmask[..., 0] for i in cols]
-        xs += [lc[..., c] for lc in loc]
-        if xs:
-            x = np.stack(xs, axis=-1)              # (nb, L, k)
+        cols = [i for i in used if design.support[pos[names[i]]][c]]
+        parts = []
+        if cols:
+            parts.append(gathered[:, :, c, [col_of[i] for i in cols]])
+        if loc:
+            parts.append(np.stack([lc[..., c] for lc in loc], axis=-1))
+        if parts:
+            x = np.concatenate(parts, axis=-1) if len(parts) > 1 else parts[0]   # (nb, L, k)
             G.append(np.matmul(np.swapaxes(x, 1, 2), x))
             bvec.append(np.einsum("nlk,nl->nk", x, r[..., c]))
         else:

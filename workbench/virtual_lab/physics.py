@@ -9,7 +9,9 @@
 * a circulatory lag on that force: two-state Wagner/Jones (default) or first order, with time
   constants that scale with ``c / max(|V_rel|, floor)``;
 * flat-plate added mass ``rho 0.579 (pi/4) L^3`` (DNV RP-C205, about 98 g; optional KC growth)
-  on the web's acceleration relative to the water, and the web's added moment of inertia;
+  on the rate of change of the web's normal velocity relative to the water, ``d/dt (v_rel . n)
+  = a_rel . n + omega v_t`` (the rotating-plate term: the normal turns at the web's rate omega,
+  so the tangential relative velocity feeds the normal one), and the web's added moment of inertia;
 * thigh and calf as cylinders (Morison: cross-flow drag and added mass, integrated along the
   links O-C and B-web), web and link structural inertia;
 * weight and buoyancy of thigh, calf and web at their own centres (a small net fz and a
@@ -50,6 +52,8 @@ class TruthParams:
     # web added mass (DNV flat plate) with optional Keulegan-Carpenter growth, web mass/volume
     added_mass_coeff: float = 0.579
     kc_gain: float = 0.25
+    #: the rotating-plate term of the added-mass force: m_a omega v_t beside m_a a_n (False: a_n only)
+    rotating_added_mass: bool = True
     web_mass_kg: float = 0.010
     web_volume_m3: float = 1.08e-5
     # circulatory lag of the normal force
@@ -243,11 +247,16 @@ class TrueLegModel(LegForceModel):
         lagged = self._circulatory(np.stack([f_qs, m_qs], axis=-1), k["speed_q"], k["dt"])
         lagged = self._series_lag(lagged, k["speed_q"], k["dt"])
         f_c, m_c = lagged[..., 0], lagged[..., 1]
-        # added mass on the acceleration relative to the water, with optional KC growth
+        # added mass on the rate of change of the normal velocity relative to the water, with
+        # optional KC growth: d/dt((v_Q - u) . n) = (a_Q - du/dt) . n + (v_Q - u) . dn/dt, and
+        # dn/dt = -omega t (n = -(-sin psi, cos psi) turns at omega = d psi/dt), so the second
+        # part is omega ((u - v_Q) . t) = omega v_t: the rotating-plate term
+        v_t = _dot(k["rel_q"], t)
         rel_acc_n = _dot(st.q_acc - k["water_acc"], n)
+        if p.rotating_added_mass:
+            rel_acc_n = rel_acc_n + st.web_rate * v_t
         m_a = p.web_added_mass_kg(side) * self._kc_factor(k)
         i_a = p.rho_kgpm3 * np.pi * (side / 2) ** 4 / 8 * side  # 2-D strip: pi rho b^4 / 8 per span
-        v_t = _dot(k["rel_q"], t)
         f_t = 0.5 * p.rho_kgpm3 * side**2 * p.c_t * np.abs(v_t) * v_t
         net_web = (p.rho_kgpm3 * p.web_volume_m3 - p.web_mass_kg) * p.gravity_mps2
         force = ((f_c - m_a * rel_acc_n)[..., None] * n + f_t[..., None] * t - p.web_mass_kg * st.q_acc)
