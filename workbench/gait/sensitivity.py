@@ -83,7 +83,8 @@ class SensitivityResult:
     #: (n_evaluations, n_gaits) scores; NaN where the simulation did not converge
     scores: np.ndarray
     taus: np.ndarray
-    #: output name -> (first_order (d,), total_order (d,)) or None when it had unconverged samples
+    #: output name -> (first (d,), total (d,), (first low, high), (total low, high)) 90 % bootstrap
+    #: intervals; None when the output had unconverged samples
     indices: dict
     unconverged: dict
     n: int
@@ -94,8 +95,13 @@ class SensitivityResult:
         def idx(v):
             if v is None:
                 return None
-            return {"first_order": dict(zip([f.name for f in self.factors], map(float, v[0]), strict=True)),
-                    "total_order": dict(zip([f.name for f in self.factors], map(float, v[1]), strict=True))}
+            names = [f.name for f in self.factors]
+            out = {"first_order": dict(zip(names, map(float, v[0]), strict=True)),
+                   "total_order": dict(zip(names, map(float, v[1]), strict=True))}
+            if len(v) > 2:
+                for key, (lo, hi) in (("first_order_ci90", v[2]), ("total_order_ci90", v[3])):
+                    out[key] = {nm: [float(a), float(b)] for nm, a, b in zip(names, lo, hi, strict=True)}
+            return out
 
         best = np.nanargmin(self.scores, axis=1) if np.isfinite(self.scores).any() else []
         return {
@@ -158,6 +164,14 @@ def run_sensitivity(gaits, labels, leg_model, robot, task_spec, *, n: int = 16, 
     dists = [uniform(loc=f.low, scale=f.high - f.low) for f in factors]
     res_all = sobol_indices(func=func, n=n, dists=dists, random_state=np.random.default_rng(seed))
     first, total = np.atleast_2d(res_all.first_order), np.atleast_2d(res_all.total_order)
+    # 90 % bootstrap intervals (no new simulations): small designs give noisy indices, say how noisy
+    import warnings
+
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # BCa warns when a factor does nothing (degenerate resamples)
+        boot = res_all.bootstrap(confidence_level=0.9, n_resamples=499)
+    ci = [np.atleast_2d(getattr(boot, k).confidence_interval.low) for k in ("first_order", "total_order")]
+    ci += [np.atleast_2d(getattr(boot, k).confidence_interval.high) for k in ("first_order", "total_order")]
     allrows = np.array(rows)
     taus = np.array([_kendall(r[np.isfinite(r)], nominal[np.isfinite(r)]) if np.isfinite(r).sum() >= 2 else np.nan
                      for r in allrows])
@@ -169,7 +183,7 @@ def run_sensitivity(gaits, labels, leg_model, robot, task_spec, *, n: int = 16, 
             unconverged[lab] = bad
             indices[lab] = None
         else:
-            indices[lab] = (first[i], total[i])
+            indices[lab] = (first[i], total[i], (ci[0][i], ci[2][i]), (ci[1][i], ci[3][i]))
     return SensitivityResult(tuple(factors), list(labels), nominal, allrows, taus, indices, unconverged, n,
                              task_spec.task)
 
