@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from workbench.diagnose.flowterms import first_order_lag
-from workbench.hydro.ef import force_at_point_to_wrench
+from workbench.diagnose.flowterms import add_point_force, first_order_lag
 from workbench.diagnose.library import ALL_CHANNELS, Context, Effect, SearchParam, Terms
 
 
@@ -166,46 +165,56 @@ class WagnerLag(Effect):
     ``F_lagged = F - a_slow (F - L_slow F) - a_fast (F - L_fast F)``, where ``F`` is the
     normal-force law per unit coefficient (:class:`NormalForceLaw`'s column: force at Q and its
     couple) and ``L_i`` a first-order lag of time constant ``tau_i c / max(|V_rel|, floor)``
-    (convective time, chord c = 0.06 m). Jones' time constants, ``c / (2 b_i V)`` with ``b =
-    0.0455, 0.3``, are ``tau = 10.99`` and ``1.667`` chords; a common ``time_scale`` multiplies
-    both (searched, 1-D: well conditioned), the amplitudes are linear (units of the normal-force
-    coefficient: Jones' 0.165 and 0.335 times C_N90). The term added is
-    ``a_slow (L_slow F - F) + a_fast (L_fast F - F)``.
+    (convective time, chord c = 0.06 m). The time constants are Jones' for a flat plate,
+    ``c / (2 b_i V)`` with ``b = 0.0455, 0.3``: 10.99 and 1.667 chords (times ``time_scale``, a
+    library option, 1 by default); the amplitudes are free and linear, in units of the
+    normal-force coefficient (Jones: 0.165 and 0.335 times C_N90 = 0.193 and 0.392 for a square
+    plate). The term added is ``a_slow (L_slow F - F) + a_fast (L_fast F - F)``.
+
+    Why fixed time constants: searched ones are poorly conditioned beside the other force terms
+    (on the demo campaign a search stopped at 3.4 times Jones' with a negative slow amplitude,
+    while the held-out error at Jones' constants was lower); a single lag with a searched
+    constant stays available as ``circulatory_lag``.
     """
 
     name = "wagner_lag"
-    ranges = {"a_slow": (-0.2, 1.5), "a_fast": (-0.2, 1.5), "time_scale": (0.1, 10.0)}
+    ranges = {"a_slow": (-0.2, 1.5), "a_fast": (-0.2, 1.5)}
     formula = ("dF = sum_i a_i (L_i F_N - F_N), L_i first-order lags of tau_i c / max(|V_rel|, 0.05), "
-               "tau = time_scale (10.99, 1.667) chords; F_N the normal-force law")
-    search = (SearchParam("time_scale", (0.3, 0.6, 1.2, 2.4, 4.8), (0.05, 20.0), log=True),)
-    #: Jones' time constants in chords, c / (2 b_i c / c): 1 / (2 * 0.0455) and 1 / (2 * 0.3)
+               "tau = (10.99, 1.667) chords (Jones); F_N the normal-force law")
+    #: Jones' time constants in chords: 1 / (2 * 0.0455) and 1 / (2 * 0.3)
     JONES_CHORDS = (1.0 / (2 * 0.0455), 1.0 / (2 * 0.3))
 
-    def __init__(self, chord_m: float = 0.06, speed_floor_mps: float = 0.05, quadrature: int = 5):
+    def __init__(self, chord_m: float = 0.06, speed_floor_mps: float = 0.05, quadrature: int = 5,
+                 time_scale: float = 1.0):
         self.chord_m = float(chord_m)
         self.floor = float(speed_floor_mps)
         self.quadrature = int(quadrature)
+        self.time_scale = float(time_scale)
 
     def linear_names(self):  # noqa: D102
         return ["a_slow", "a_fast"]
 
     def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
         kin = ctx.kin
-        f, m = kin.normal_law(self.quadrature)
-        fm = np.stack([f, m], axis=-1)
-        speed = np.maximum(kin.speed, self.floor)
-        cols = []
-        for tau in self.JONES_CHORDS:
-            lagged = first_order_lag(fm, speed / (tau * nl["time_scale"] * self.chord_m), ctx.dt_s)
-            cols.append(kin.normal_law_wrench(lagged[..., 0] - f, lagged[..., 1] - m))
-        return Terms(["a_slow", "a_fast"], cols, [ALL_CHANNELS, ALL_CHANNELS])
+
+        def make():
+            f, m = kin.normal_law(self.quadrature)
+            fm = np.stack([f, m], axis=-1)
+            speed = np.maximum(kin.speed, self.floor)
+            cols = []
+            for tau in self.JONES_CHORDS:
+                lagged = first_order_lag(fm, speed / (tau * self.time_scale * self.chord_m), ctx.dt_s)
+                cols.append(kin.normal_law_wrench(lagged[..., 0] - f, lagged[..., 1] - m))
+            return np.stack(cols)
+
+        cols = kin._memo(("wagner", self.quadrature, self.chord_m, self.floor, self.time_scale), make)
+        return Terms(["a_slow", "a_fast"], [cols[0], cols[1]], [ALL_CHANNELS, ALL_CHANNELS])
 
     def canonical_params(self, coefs, nl, cov, local=None):  # noqa: D102
         params, se = super().canonical_params(coefs, nl, cov, local)
-        k, k_se = nl.get("time_scale", float("nan")), se.get("time_scale", float("nan"))
         for key, tau in zip(("tau_slow_chords", "tau_fast_chords"), self.JONES_CHORDS, strict=True):
-            params[key] = tau * k
-            se[key] = tau * k_se
+            params[key] = tau * self.time_scale
+            se[key] = 0.0
         return params, se
 
 
@@ -287,7 +296,8 @@ class LinkInertia(Effect):
         def web():
             st = kin.state
             a_t = (st.q_acc * st.tangent).sum(-1)
-            return force_at_point_to_wrench(-a_t[..., None] * st.tangent, st.q, kin.geometry.web_offset_x_m)
+            return add_point_force(np.zeros(a_t.shape + (6,)), -a_t[..., None] * st.tangent, st.q,
+                                   kin.geometry.web_offset_x_m)
 
         return Terms(["m_kgpm", "web_t_kg"], [kin._memo(("linkm", self.x_m, self.quadrature), links),
                                               kin._memo(("webt",), web)], [ALL_CHANNELS, ALL_CHANNELS])

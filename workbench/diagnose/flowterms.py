@@ -12,7 +12,6 @@ from functools import cached_property
 
 import numpy as np
 
-from workbench.hydro.ef import force_at_point_to_wrench, web_normal_force_to_wrench
 from workbench.hydro.kinematics import DEFAULT_GEOMETRY, LegGeometry, leg_state
 from workbench.hydro.motion import LegMotion
 
@@ -25,6 +24,22 @@ def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def _perp(v: np.ndarray) -> np.ndarray:
     return np.stack([-v[..., 1], v[..., 0]], axis=-1)
+
+
+def add_point_force(out: np.ndarray, force2: np.ndarray, point2: np.ndarray, x_m: float) -> np.ndarray:
+    """Add a leg-plane force (..., 2) at a leg-plane point (..., 2), ``x_m`` off the hip axis, to a wrench.
+
+    The same numbers as :func:`workbench.hydro.ef.force_at_point_to_wrench` (r x F with
+    r = (x_m, X, Y), F = (0, F_X, F_Y)), accumulated in place without building 3-vectors: the
+    link terms sum eight Gauss points and are recomputed whenever the motion changes.
+    """
+    fx_, fy_ = force2[..., 0], force2[..., 1]
+    out[..., 1] += fx_
+    out[..., 2] += fy_
+    out[..., 3] += point2[..., 0] * fy_ - point2[..., 1] * fx_
+    out[..., 4] -= x_m * fy_
+    out[..., 5] += x_m * fx_
+    return out
 
 
 class LegKinematics:
@@ -122,7 +137,9 @@ class LegKinematics:
 
     def normal_wrench(self, f_n: np.ndarray) -> np.ndarray:
         """A force ``f_n`` along the web normal at Q as a load-cell wrench."""
-        return web_normal_force_to_wrench(f_n, self.state, self.geometry)
+        st = self.state
+        return add_point_force(np.zeros(f_n.shape + (6,)), f_n[..., None] * st.normal, st.q,
+                               self.geometry.web_offset_x_m)
 
     def couple_wrench(self, m_x: np.ndarray) -> np.ndarray:
         """A pure in-plane couple (about the load cell's +x, the leg plane's normal) as a wrench."""
@@ -200,7 +217,7 @@ class LegKinematics:
         for pos, vel, nrm, dl in self.link_points(quadrature):
             v_n = _dot(self.water - vel, nrm)
             f = (0.5 * self.rho * np.abs(v_n) * v_n * dl)[..., None] * nrm
-            out += force_at_point_to_wrench(f, pos, x_m)
+            add_point_force(out, f, pos, x_m)
         return out
 
     def link_inertia_units(self, x_m: float = 0.01, quadrature: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -241,12 +258,8 @@ class LegKinematics:
         lengths = self.link_lengths()
         for pos, acc, nrm, dl, link in self.link_accelerations(quadrature):
             a_n = _dot(acc - self.water_acc, nrm)
-            added += force_at_point_to_wrench(-(a_n * dl)[..., None] * nrm, pos, x_m)
-            own = force_at_point_to_wrench(-acc * (dl / lengths[link]), pos, x_m)
-            if link == "thigh":
-                thigh += own
-            else:
-                calf += own
+            add_point_force(added, -(a_n * dl)[..., None] * nrm, pos, x_m)
+            add_point_force(thigh if link == "thigh" else calf, -acc * (dl / lengths[link]), pos, x_m)
         return added, thigh, calf
 
     def spread_weight_units(self, x_m: float = 0.01, quadrature: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -262,8 +275,8 @@ class LegKinematics:
             up = np.zeros(shape + (2,))
             up[..., 1] = 1.0
             for pos, _acc, _nrm, dl, link in self.link_accelerations(quadrature):
-                out[link] += force_at_point_to_wrench(up * (dl / lengths[link]), pos, x_m)
-            web = force_at_point_to_wrench(up, self.state.q, self.geometry.web_offset_x_m)
+                add_point_force(out[link], up * (dl / lengths[link]), pos, x_m)
+            web = add_point_force(np.zeros(shape + (6,)), up, self.state.q, self.geometry.web_offset_x_m)
             return np.stack([out["thigh"], out["calf"], web])
 
         return tuple(self._memo(("spreadweight", x_m, quadrature), make))

@@ -244,7 +244,8 @@ def effect_options(effect: Effect) -> dict:
     if effect.name == "circulatory_lag":
         return {"c_r": effect.c_r, "chord_m": effect.chord_m, "speed_floor_mps": effect.floor}
     if effect.name == "wagner_lag":
-        return {"chord_m": effect.chord_m, "speed_floor_mps": effect.floor, "quadrature": effect.quadrature}
+        return {"chord_m": effect.chord_m, "speed_floor_mps": effect.floor, "quadrature": effect.quadrature,
+                "time_scale": effect.time_scale}
     if effect.name in ("link_inertia", "link_weight_buoyancy"):
         return {"x_m": effect.x_m, "quadrature": effect.quadrature}
     if effect.name == "normal_force_law":
@@ -276,3 +277,57 @@ def default_library(names: list[str] | None = None, link_x_m: float = 0.01, link
     opts = {"link_drag": links, "link_inertia": links, "link_weight_buoyancy": links,
             "circulatory_lag": {"c_r": circulatory_c_r}}
     return EffectLibrary([make_effect(n, opts.get(n)) for n in names])
+
+
+def truth_reference(truth: dict, ef_params=None) -> dict[str, dict[str, float]]:
+    """The canonical parameters a virtual campaign's rich truth gives the library's effects, with the EF as base.
+
+    ``truth`` is the ``truth`` block of a virtual campaign's ``truth.json`` (what
+    ``TrueLegModel.describe()`` writes); the values are what a perfect diagnosis of the EF on that
+    campaign would report, for the report to show beside the fitted ones. Terms the library does
+    not hold exactly are mapped to their nearest reading and say so in ``notes``: the links'
+    added mass acts along their normal only, while ``link_inertia.m_kgpm`` takes structure and
+    added mass on the whole acceleration; the lateral force is a fraction of the *lagged* normal
+    force in the truth. Returns ``{}`` for a truth other than ``rich``.
+    """
+    from workbench.hydro.ef import EFParams
+
+    if truth.get("truth") != "rich":
+        return {}
+    p = dict(truth.get("params", {}))
+    geo = dict(truth.get("geometry", {}))
+    ef = ef_params or EFParams()
+    rho, g = p.get("rho_kgpm3", 1000.0), p.get("gravity_mps2", 9.81)
+    side = geo.get("web_side_m", 0.06)
+    m_a = rho * p.get("added_mass_coeff", 0.579) * np.pi / 4 * side ** 3
+    web = p.get("web_mass_kg", 0.01)
+    c_n = p.get("c_n90", 1.17)
+    frac = p.get("circulatory_fraction", 1.0) if p.get("lag", "wagner") == "wagner" else 0.0
+    amps = p.get("wagner_amplitudes", (0.165, 0.335))
+    rates = p.get("wagner_rates", (0.0455, 0.3))
+    thigh_len = geo.get("oc_m", 0.125)
+    calf_len = geo.get("bq_over_bc", 2.5) * geo.get("oa_m", 0.035) - side / 2
+    d = p.get("link_diameter_m", 0.006)
+    added_per_len = p.get("link_added_mass_coeff", 1.0) * rho * np.pi * d * d / 4
+    structure = (p.get("thigh_mass_kg", 0.02) + p.get("calf_mass_kg", 0.012)) / (thigh_len + calf_len)
+    net = {k: (rho * p.get(f"{k}_volume_m3", 0.0) - p.get(f"{k}_mass_kg", 0.0)) * g for k in ("thigh", "calf", "web")}
+    out = {
+        "normal_force_law": {"c_n90": c_n},
+        "drag_coefficient_error": {"delta_c": -ef.c_r + p.get("extra_normal_drag_c", 0.0)},
+        "wagner_lag": {"a_slow": c_n * frac * amps[0], "a_fast": c_n * frac * amps[1],
+                       "tau_slow_chords": 1 / (2 * rates[0]), "tau_fast_chords": 1 / (2 * rates[1])},
+        "rotating_added_mass": {"m_a_kg": m_a if p.get("rotating_added_mass", True) else 0.0},
+        "added_mass_kc": {"m_kc_kg": m_a * p.get("kc_gain", 0.0)},
+        "added_mass_error": {"delta_kg": m_a + web - ef.added_mass_kg - ef.m_web_kg + p.get("extra_added_mass_kg", 0.0)},
+        "link_drag": {"cd_d_m": p.get("link_cd_d_m", 0.0) + p.get("extra_link_cd_d_m", 0.0)},
+        "link_inertia": {"m_kgpm": structure + added_per_len, "web_t_kg": web},
+        "lateral_force": {"c_lat": p.get("lateral_fraction", 0.0) * c_n},
+        "link_weight_buoyancy": {"net_thigh_n": net["thigh"], "net_calf_n": net["calf"], "net_web_n": net["web"],
+                                 "net_n": sum(net.values())},
+        "leg_weight_buoyancy": {"net_n": sum(net.values())},
+        "notes": {"link_inertia.m_kgpm": f"structure {structure:.3g} kg/m on the whole acceleration + added mass "
+                                         f"{added_per_len:.3g} kg/m along the links' normal only",
+                  "lateral_force.c_lat": "a fraction of the lagged normal force in the truth (the fit sees less)",
+                  "added_mass_error.delta_kg": "truth's m_a + web mass - the EF's 2 pi rho a^3 + m_web on a_n"},
+    }
+    return out
