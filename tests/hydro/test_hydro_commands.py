@@ -129,3 +129,25 @@ def test_simulate_refuses_bad_input(argv, message, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and message in err
     assert not (tmp_path / "s").exists()
+
+
+def test_simulate_reports_a_gait_that_did_not_converge(tmp_path, capsys):
+    import yaml
+
+    robot = yaml.safe_load(open("pipelines/robot.yaml"))
+    robot["simulation"].update(max_iter=1, tol_mps=1e-9)      # one iteration per window cannot reach 1e-9
+    (tmp_path / "robot.yaml").write_text(yaml.safe_dump(robot))
+    out = tmp_path / "sim"
+    assert main(["simulate", "--gait", "theta_h_min_deg=-30", "theta_k_max_deg=-60", "frequency_hz=0.4",
+                 "alpha_rad=0,1,2,3", "--robot", str(tmp_path / "robot.yaml"), "--duration", "3",
+                 "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "gait 1: the simulation did NOT converge" in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["converged_all"] is False and summary["unconverged"] == ["gait 1"]
+    assert summary["gaits"][0]["converged"] is False and summary["gaits"][0]["fixed_point_residual_mps"] > 1e-9
+    # the same gait with the file's own settings converges and says nothing
+    assert main(["simulate", "--gait", "theta_h_min_deg=-30", "theta_k_max_deg=-60", "frequency_hz=0.4",
+                 "alpha_rad=0,1,2,3", "--duration", "3", "--out", str(tmp_path / "ok")]) == 0
+    assert "NOT converge" not in capsys.readouterr().err
+    assert json.loads((tmp_path / "ok" / "summary.json").read_text())["converged_all"] is True

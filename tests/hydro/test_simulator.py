@@ -102,9 +102,10 @@ def test_converges_over_the_papers_parameter_ranges():
     g = GaitBatch.from_arrays(rng.uniform(-50, 10, b), rng.uniform(-80, -20, b), rng.uniform(0.2, 0.65, b),
                               rng.uniform(0, 2 * np.pi, (b, 4)))
     tr = simulate(g, EF, ROBOT, duration_s=20)
-    assert tr.converged.all() and tr.iterations <= 15
+    assert tr.converged.all() and tr.iterations <= 20       # leg-model calls, tol 1e-5
     unconverged = simulate(g, EF, ROBOT, duration_s=5, max_iter=1)
-    assert not unconverged.converged.any() and unconverged.iterations == 1
+    # one iteration per window (retries on shorter windows included) is not enough, and it says so
+    assert not unconverged.converged.any() and unconverged.residual_mps.min() > 1e-4
 
 
 def test_batch_rows_equal_single_runs_and_runs_are_deterministic():

@@ -82,7 +82,6 @@ def run(args) -> int:
     from workbench.gait.config import load_config
     from workbench.gait.export import model_label
     from workbench.gait.optimize import optimize_task
-    from workbench.gait.space import VARIABLES
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
 
@@ -107,16 +106,20 @@ def run(args) -> int:
                                 on_generation=show)
     m = outcome.metrics
     if m["unconverged_gaits"]:
-        info(f"warning: {m['unconverged_gaits']} simulated gait(s) did not converge within "
-             f"{cfg.simulation.max_iter} fixed-point iterations (raise simulation.max_iter)")
+        info(f"warning: {m['unconverged_gaits']} of {m['simulated_gaits']} simulated gait(s) did not converge "
+             f"(penalised: ranked below every converged gait; counted in the gait file and MLflow)")
+    if m.get("retained_unconverged"):
+        info(f"warning: {m['retained_unconverged']} retained gait(s) did not converge (marked converged: false "
+             f"in the gait file; the virtual pool refuses them)")
 
     out = Path(args.out)
     stem = f"{args.task}-{label}"
     folder = out / stem
     history = [asdict(g) for g in outcome.result.history]
-    population = [dict(zip(VARIABLES, map(float, x), strict=True)) | {"f1": float(f[0]), "f2": float(f[1]),
-                  "f3": float(f[2]), "score": float(s)}
-                  for x, f, s in zip(outcome.result.x, outcome.result.f, outcome.result.s, strict=True)]
+    population = [dict(zip(cfg.space.variables, map(float, x), strict=True)) | {"f1": float(f[0]), "f2": float(f[1]),
+                  "f3": float(f[2]), "score": float(s), "converged": bool(ok)}
+                  for x, f, s, ok in zip(outcome.result.x, outcome.result.f, outcome.result.s,
+                                         outcome.result.converged, strict=True)]
     with atomic_dir(folder) as tmp:
         (tmp / "controller.json").write_text(_json(outcome.controller_doc), encoding="utf-8")
         (tmp / "best.csv").write_text(_csv(outcome.table), encoding="utf-8")

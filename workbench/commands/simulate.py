@@ -17,7 +17,9 @@ def register(sub) -> None:
         "alpha_rad as four comma-separated phases LF,RF,LH,RH, or one for all legs). Writes "
         "OUT/trajectory.parquet (one row per gait and tick: pose, body velocities, total, body "
         "and per-leg wrenches), OUT/paths.png and OUT/summary.json. Robot constants and "
-        "simulation settings: pipelines/robot.yaml.",
+        "simulation settings (fixed-point scheme and tolerance): pipelines/robot.yaml. A gait whose "
+        "fixed point did not converge is reported on the terminal, in summary.json (converged: false, "
+        "unconverged) and dashed in paths.png.",
         examples="""\
   workbench simulate --gait theta_h_min_deg=-20 theta_k_max_deg=-50 frequency_hz=0.5 alpha_rad=0 --out /tmp/sim
   workbench simulate --gait theta_h_min_deg=10 theta_k_max_deg=-20 frequency_hz=0.6 alpha_rad=0,3.14,0,3.14 \\
@@ -139,13 +141,18 @@ def run(args) -> int:
     labels = [label for label, _ in gaits]
     info(f"simulating {len(batch)} gait(s) with leg model {args.model!r} for {settings.get('duration_s', 20.0):g} s")
     traj = simulate(batch, model, robot, **settings,
-                    on_iteration=lambda k, res: info(f"  fixed-point iteration {k}: largest flow change "
+                    on_iteration=lambda k, res: info(f"  leg-model call {k}: largest flow change "
                                                      f"{res.max():.2e} m/s"))
-    if not traj.converged.all():
-        info(f"warning: {int((~traj.converged).sum())} gait(s) did not converge in {traj.iterations} iterations")
+    tol = settings.get("tol_mps", 1e-5)
+    bad = [i for i in range(len(labels)) if not traj.converged[i]]
+    for i in bad:
+        info(f"warning: {labels[i]}: the simulation did NOT converge (fixed-point residual "
+             f"{traj.residual_mps[i]:.2g} m/s > {tol:g}); its trajectory is not a solution (summary.json: "
+             f"converged false; dashed in paths.png)")
     frame = traj.to_frame([{"label": lab} for lab in labels])
     summary = {"model": args.model, "robot": robot.describe(), "settings": settings,
-               "iterations": traj.iterations, "gaits": summarise(traj, labels)}
+               "iterations": traj.iterations, "converged_all": not bad,
+               "unconverged": [labels[i] for i in bad], "gaits": summarise(traj, labels)}
     png = paths_figure_png(traj, labels)
     out = Path(args.out)
     with atomic_path(out / "trajectory.parquet", suffix=".parquet") as tmp:
@@ -156,4 +163,6 @@ def run(args) -> int:
         info(f"{g['gait']}: end ({g['final_x_m']:+.3f}, {g['final_y_m']:+.3f}) m, yaw {g['final_yaw_deg']:+.1f} deg, "
              f"forward speed {g['mean_forward_speed_mps']:.3f} m/s")
     info(f"wrote {out / 'trajectory.parquet'}, paths.png, summary.json")
+    if bad:
+        info(f"warning: {len(bad)} of {len(labels)} gait(s) did not converge (see above)")
     return 0

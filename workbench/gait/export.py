@@ -34,8 +34,13 @@ def model_label(spec: str) -> str:
 
 
 def gait_document(spec: TaskSpec, model: str, gaits: GaitBatch, f: np.ndarray, s: np.ndarray, *,
-                  extra: Mapping[str, Any] | None = None) -> dict:
-    """The contract gait file (section 5) for retained gaits already sorted best score first."""
+                  extra: Mapping[str, Any] | None = None, converged: np.ndarray | None = None,
+                  gait_space: str = "paper") -> dict:
+    """The contract gait file (section 5) for retained gaits already sorted best score first.
+
+    Each solution also says whether its simulation ``converged`` (an added key; an unconverged one
+    is kept only when too few converged, ranked after all that did).
+    """
     params = gaits.to_params()
     solutions = []
     for i, p in enumerate(params):
@@ -45,9 +50,10 @@ def gait_document(spec: TaskSpec, model: str, gaits: GaitBatch, f: np.ndarray, s
                        "frequency_hz": p["frequency_hz"], "alpha_rad": p["alpha_rad"]},
             "objectives": {"f1": float(f[i, 0]), "f2": float(f[i, 1]), "f3": float(f[i, 2])},
             "score": float(s[i]),
+            "converged": True if converged is None else bool(converged[i]),
         })
     doc = {"task": spec.task, "model": model, "solutions": solutions,
-           "schema": GAITS_SCHEMA, "objective_names": spec.names, "weights": list(spec.weights),
+           "schema": GAITS_SCHEMA, "gait_space": gait_space, "objective_names": spec.names, "weights": list(spec.weights),
            "fixed": {"theta_h_max_deg": gaits.theta_h_max_deg, "theta_k_min_deg": gaits.theta_k_min_deg,
                      "phi_rad": gaits.phi_rad}}
     doc.update(dict(extra or {}))
@@ -74,7 +80,7 @@ def joint_functions(gaits: GaitBatch, i: int) -> dict:
 
 
 def controller_document(spec: TaskSpec, model: str, gaits: GaitBatch, s: np.ndarray, *, sample_rate_hz: float,
-                        haa_deg: Sequence[float]) -> dict:
+                        haa_deg: Sequence[float], gait_space: str = "paper") -> dict:
     """The controller gait file: every retained gait as joint-angle functions per leg plus one sampled cycle."""
     out = []
     for i in range(len(gaits)):
@@ -90,7 +96,7 @@ def controller_document(spec: TaskSpec, model: str, gaits: GaitBatch, s: np.ndar
                     "alpha_rad": {leg: float(gaits.alpha_rad[i, j]) for j, leg in enumerate(LEG_NAMES)},
                     "joints": joint_functions(gaits, i), "cycle": table})
     return {
-        "schema": CONTROLLER_SCHEMA, "task": spec.task, "model": model,
+        "schema": CONTROLLER_SCHEMA, "task": spec.task, "model": model, "gait_space": gait_space,
         "equation": "angle_deg(t) = offset_deg + amplitude_deg * sin(2*pi*frequency_hz*t + phase_rad)",
         "joints": {"hfe": "hip flexion-extension theta_h: thigh angle from the forward axis, counter-clockwise "
                           "seen from the leg's outer side (-90 deg hangs down)",

@@ -73,12 +73,15 @@ def verify_direct(problem: GaitProblem, result: OptimizeResult, k: int) -> tuple
     x = result.x[:k]
     f_dir, traj = direct.evaluate_gaits(problem.space.gaits(x))
     s_dir = score(f_dir, problem.spec.weights)
-    order = np.argsort(s_dir, kind="stable")
+    ok = traj.converged
+    order = np.lexsort((s_dir, ~ok))
+    problem.log.unconverged += direct.log.unconverged
     info = {"verified_direct": int(k), "verify_seconds": direct.log.seconds,
+            "verify_unconverged": int(direct.log.unconverged),
             "verify_max_rel_diff": objective_differences(result.f[:k], f_dir, problem.spec.task),
             "verify_max_rel_diff_score": relative_difference(result.s[:k], s_dir)}
     ranked = OptimizeResult(x[order], f_dir[order], s_dir[order], result.history, result.evaluations,
-                            result.seconds, result.method)
+                            result.seconds, result.method, ok[order])
     return ranked, _rows(traj, order), info
 
 
@@ -115,22 +118,28 @@ def optimize_task(cfg: OptimizeConfig, task: str, leg_model: LegForceModel, robo
         retained = result.best(cfg.retain)
         f_again, traj = problem.evaluate_gaits(problem.space.gaits(retained.x))
         resim = relative_difference(f_again, retained.f)
+        retained.converged = retained.converged & traj.converged
     gaits = problem.space.gaits(retained.x)
     seconds = time.perf_counter() - t0
+    log = problem.log
     extra = {"seed": cfg.nsga2.seed, "model_spec": model_spec or model_label,
              "model_description": leg_model.describe(), "settings": problem.describe() | {"nsga2": asdict(cfg.nsga2)},
-             "evaluations": result.evaluations}
-    gait_doc = gait_document(ts.spec, model_label, gaits, retained.f, retained.s, extra=extra)
-    ctrl = controller_document(ts.spec, model_label, gaits, retained.s,
-                               sample_rate_hz=cfg.controller.sample_rate_hz, haa_deg=robot.haa_angle_deg)
-    front = result.f[non_dominated(result.f)]
-    log = problem.log
+             "evaluations": result.evaluations,
+             # simulations that did not converge (penalised: ranked below every converged gait), checks included
+             "unconverged_gaits": int(log.unconverged), "simulated_gaits": int(log.gaits)}
+    gait_doc = gait_document(ts.spec, model_label, gaits, retained.f, retained.s, extra=extra,
+                             converged=retained.converged, gait_space=cfg.space.extension)
+    ctrl = controller_document(ts.spec, model_label, gaits, retained.s, sample_rate_hz=cfg.controller.sample_rate_hz,
+                               haa_deg=robot.haa_angle_deg, gait_space=cfg.space.extension)
+    feasible = result.f[result.converged]
+    front = feasible[non_dominated(feasible)]
     metrics = {
         "task": task, "model": model_label, "best_score": float(retained.s[0]),
         "best_f1": float(retained.f[0, 0]), "best_f2": float(retained.f[0, 1]), "best_f3": float(retained.f[0, 2]),
         "hypervolume": hypervolume(front, np.asarray(ts.hv_reference)), "front_size": int(len(front)),
         "evaluations": int(result.evaluations), "generations": len(result.history), "seconds": seconds,
-        "simulation_seconds": log.seconds, "unconverged_gaits": int(log.unconverged),
+        "simulation_seconds": log.seconds, "unconverged_gaits": int(log.unconverged), "simulated_gaits": int(log.gaits),
+        "retained_unconverged": int((~retained.converged).sum()),
         "resim_max_rel_diff": resim, "tabulation": dict(log.table), **verify,
     }
     outcome = GaitOutcome(task, model_label, result, retained, traj, gait_doc, ctrl,

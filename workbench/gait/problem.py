@@ -17,11 +17,11 @@ import numpy as np
 from pymoo.core.problem import Problem
 
 from workbench.gait.objectives import TaskSpec, objectives
-from workbench.gait.space import VARIABLES, GaitSpace
+from workbench.gait.space import GaitSpace
 from workbench.gait.tabulate import TabulatedLegModel, TabulationSettings
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.robot import RobotParams
-from workbench.hydro.simulator import DEFAULT_DT_S, GaitBatch, Trajectory, simulate
+from workbench.hydro.simulator import DEFAULT_DT_S, GaitBatch, Trajectory, simulate, simulation_settings
 
 
 @dataclass(frozen=True)
@@ -29,9 +29,13 @@ class SimSettings:
     """Simulator settings other than the duration (which is the task's cap)."""
 
     dt_s: float = DEFAULT_DT_S
-    tol_mps: float = 1e-4
+    tol_mps: float = 1e-5
     max_iter: int = 40
-    relaxation: float = 0.8
+    relaxation: float = 1.0
+    method: str = "windowed"
+    window_s: float = 20.0
+    max_window_s: float = 60.0
+    anderson: int = 5
 
     @classmethod
     def from_dict(cls, doc: Mapping[str, Any] | None) -> "SimSettings":
@@ -40,7 +44,13 @@ class SimSettings:
         unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
         if unknown:
             raise ValueError(f"unknown simulation setting(s) {unknown}; the duration is the task's cap_s")
-        return cls(**{k: (int(v) if k == "max_iter" else float(v)) for k, v in doc.items()})
+        return cls(**simulation_settings(doc))
+
+    def kwargs(self) -> dict:
+        """Keyword arguments of :func:`simulate` (all but the duration)."""
+        from dataclasses import asdict
+
+        return asdict(self)
 
 
 @dataclass
@@ -63,7 +73,13 @@ class EvaluationLog:
 
 
 class GaitProblem(Problem):
-    """Minimise the task's three objectives over gait parameters; one simulation per population."""
+    """Minimise the task's three objectives over gait parameters; one simulation per population.
+
+    A gait whose simulation did not converge has no trustworthy objectives: it gets one inequality
+    constraint violated, g = residual / tol - 1 > 0 (pymoo's constraint domination ranks every
+    converged gait above it, and less unconverged above more), and it is counted
+    (``log.unconverged``; the gait file and the MLflow run carry the count).
+    """
 
     def __init__(self, spec: TaskSpec, leg_model: LegForceModel, robot: RobotParams, *,
                  space: GaitSpace | None = None, sim: SimSettings | None = None,
@@ -76,11 +92,20 @@ class GaitProblem(Problem):
         self.tabulation = tabulation or TabulationSettings()
         self.log = EvaluationLog()
         self._flow_kernel: np.ndarray | None = None
-        super().__init__(n_var=len(VARIABLES), n_obj=3, xl=self.space.xl, xu=self.space.xu, vtype=float)
+        super().__init__(n_var=len(self.space.variables), n_obj=3, n_ieq_constr=1, xl=self.space.xl, xu=self.space.xu,
+                         vtype=float)
 
     # -- pymoo -----------------------------------------------------------------------------------
     def _evaluate(self, x, out, *args, **kwargs):
-        out["F"] = self.evaluate_gaits(self.space.gaits(x))[0]
+        f, traj = self.evaluate_gaits(self.space.gaits(x))
+        # an unconverged gait's objectives mean nothing; keep them finite for the sorting (the constraint ranks it)
+        out["F"] = np.where(np.isfinite(f), f, 1e6)
+        out["G"] = self.violation(traj)[:, None]
+
+    def violation(self, traj: Trajectory) -> np.ndarray:
+        """(B,) constraint values: <= 0 for a converged simulation, residual / tol - 1 (capped) otherwise."""
+        g = np.minimum(np.nan_to_num(traj.residual_mps, nan=np.inf) / self.sim.tol_mps - 1.0, 1e6)
+        return np.where(traj.converged, np.minimum(g, 0.0), np.maximum(g, 1e-6))
 
     # -- direct use ------------------------------------------------------------------------------
     def model_for(self, gaits: GaitBatch) -> LegForceModel:
@@ -99,8 +124,7 @@ class GaitProblem(Problem):
         """Swim the batch for the task's cap (one simulator call), counting the work."""
         t0 = time.perf_counter()
         model = self.model_for(gaits)
-        traj = simulate(gaits, model, self.robot, duration_s=self.spec.cap_s, dt_s=self.sim.dt_s,
-                        tol_mps=self.sim.tol_mps, max_iter=self.sim.max_iter, relaxation=self.sim.relaxation)
+        traj = simulate(gaits, model, self.robot, duration_s=self.spec.cap_s, **self.sim.kwargs())
         self.log.gaits += len(gaits)
         self.log.calls += 1
         self.log.seconds += time.perf_counter() - t0

@@ -61,6 +61,8 @@ class Generation:
     best_score: float
     front_size: int
     seconds: float
+    #: gaits of the population whose simulation did not converge (excluded from front, HV and best S)
+    unconverged: int = 0
 
 
 @dataclass
@@ -74,18 +76,28 @@ class OptimizeResult:
     evaluations: int = 0
     seconds: float = 0.0
     method: str = "nsga2"
+    #: (n,) whether each solution's simulation converged (converged ones rank first); None: all did
+    converged: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.converged is None:
+            self.converged = np.ones(len(self.s), bool)
 
     def best(self, k: int) -> "OptimizeResult":
         """The best ``k`` solutions."""
         return OptimizeResult(self.x[:k], self.f[:k], self.s[:k], self.history, self.evaluations, self.seconds,
-                              self.method)
+                              self.method, self.converged[:k])
 
 
-def rank(x: np.ndarray, f: np.ndarray, weights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sort solutions by S (ties keep their order); returns x, f, s sorted."""
+def rank(x: np.ndarray, f: np.ndarray, weights, converged: np.ndarray | None = None):
+    """Sort solutions by S, every converged one before any unconverged one (ties keep their order).
+
+    Returns x, f, s and the converged mask, sorted.
+    """
     s = score(f, weights)
-    order = np.argsort(s, kind="stable")
-    return x[order], f[order], s[order]
+    converged = np.ones(len(s), bool) if converged is None else np.asarray(converged, bool)
+    order = np.lexsort((s, ~converged))
+    return x[order], f[order], s[order], converged[order]
 
 
 def non_dominated(f: np.ndarray) -> np.ndarray:
@@ -132,10 +144,14 @@ def _generation_log(reference: np.ndarray, weights, on_generation: Callable[[Gen
 
         def notify(self, algorithm):
             f = algorithm.pop.get("F")
+            ok = _feasible(algorithm.pop)
+            f = f[ok]
             front = f[non_dominated(f)]
+            best = float(score(f, weights).min()) if len(f) else float("nan")
             rec = Generation(gen=int(algorithm.n_gen), evaluations=int(algorithm.evaluator.n_eval),
-                             hypervolume=hypervolume(front, reference), best_score=float(score(f, weights).min()),
-                             front_size=len(front), seconds=time.perf_counter() - self.t0)
+                             hypervolume=hypervolume(front, reference), best_score=best,
+                             front_size=len(front), seconds=time.perf_counter() - self.t0,
+                             unconverged=int((~ok).sum()))
             self.records.append(rec)
             if on_generation is not None:
                 on_generation(rec)
@@ -153,18 +169,29 @@ def run_nsga2(problem: GaitProblem, settings: NSGA2Settings, reference, *,
     res = minimize(problem, build_algorithm(settings), ("n_gen", settings.n_gen), seed=settings.seed,
                    callback=log, verbose=False, copy_algorithm=False)
     pop = res.algorithm.pop
-    x, f, s = rank(pop.get("X"), pop.get("F"), problem.spec.weights)
-    return OptimizeResult(x, f, s, log.records, int(res.algorithm.evaluator.n_eval), time.perf_counter() - t0)
+    x, f, s, ok = rank(pop.get("X"), pop.get("F"), problem.spec.weights, _feasible(pop))
+    return OptimizeResult(x, f, s, log.records, int(res.algorithm.evaluator.n_eval), time.perf_counter() - t0,
+                          converged=ok)
+
+
+def _feasible(pop) -> np.ndarray:
+    """(n,) whether each individual's simulation converged (its constraint g <= 0; no constraint: all)."""
+    g = pop.get("G")
+    if g is None or np.size(g) == 0:
+        return np.ones(len(pop), bool)
+    return np.all(np.asarray(g, float).reshape(len(pop), -1) <= 0, axis=1)
 
 
 def run_random(problem: GaitProblem, evaluations: int, seed: int, batch: int = 64) -> OptimizeResult:
     """Random search: ``evaluations`` gaits drawn uniformly in the bounds, ranked by S."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
-    xs, fs = [], []
+    xs, fs, oks = [], [], []
     for start in range(0, evaluations, batch):
         x = problem.space.sample(min(batch, evaluations - start), rng)
         xs.append(x)
-        fs.append(problem.evaluate_gaits(problem.space.gaits(x))[0])
-    x, f, s = rank(np.concatenate(xs), np.concatenate(fs), problem.spec.weights)
-    return OptimizeResult(x, f, s, [], evaluations, time.perf_counter() - t0, method="random")
+        f, traj = problem.evaluate_gaits(problem.space.gaits(x))
+        fs.append(f)
+        oks.append(traj.converged)
+    x, f, s, ok = rank(np.concatenate(xs), np.concatenate(fs), problem.spec.weights, np.concatenate(oks))
+    return OptimizeResult(x, f, s, [], evaluations, time.perf_counter() - t0, method="random", converged=ok)

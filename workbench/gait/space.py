@@ -4,6 +4,18 @@ A decision vector is ``[theta_h_min_deg, theta_k_max_deg, frequency_hz, alpha_LF
 alpha_LH, alpha_RH]``: one joint range and frequency for all four legs (as in the paper) and a
 phase per leg; theta_h_max, theta_k_min and phi are fixed (paper: -100 deg, 80 deg, pi/3).
 The front legs' HAA angle (30 deg) is a robot constant (pipelines/robot.yaml), not a variable.
+
+In that space every leg sweeps the same stroke and only the phases differ, so the mean yaw
+torque of a gait cancels to first order between left and right legs and a gait turns only
+through second-order effects (docs/gaits.md, "What the paper's gait space can do"). Named
+extensions (``space.extension``) add variables and stay within what the gait and controller
+files carry (per-leg joint ranges):
+
+* ``paper`` (default): the paper's space above, 7 variables;
+* ``per_side_range``: the joint ranges per side, ``[theta_h_min_left_deg, theta_h_min_right_deg,
+  theta_k_max_left_deg, theta_k_max_right_deg, frequency_hz, alpha_LF, alpha_RF, alpha_LH,
+  alpha_RH]``, 9 variables (left legs LF, LH; right legs RF, RH): a larger stroke on one side
+  makes a net yaw torque, as a rower pulls harder on one oar.
 """
 
 from __future__ import annotations
@@ -17,8 +29,16 @@ import numpy as np
 from workbench.hydro.robot import LEG_NAMES
 from workbench.hydro.simulator import PHI_RAD, THETA_H_MAX_DEG, THETA_K_MIN_DEG, GaitBatch
 
-#: decision-vector entries, in order
+#: decision-vector entries of the paper's space, in order
 VARIABLES = ("theta_h_min_deg", "theta_k_max_deg", "frequency_hz") + tuple(f"alpha_{n.lower()}_rad" for n in LEG_NAMES)
+#: named gait-space extensions -> their decision-vector entries
+EXTENSIONS = {
+    "paper": VARIABLES,
+    "per_side_range": ("theta_h_min_left_deg", "theta_h_min_right_deg", "theta_k_max_left_deg",
+                       "theta_k_max_right_deg", "frequency_hz") + VARIABLES[3:],
+}
+#: per leg (LF, RF, LH, RH): its side's column in the per-side variables (0 left, 1 right)
+_SIDE = np.array([0, 1, 0, 1])
 
 
 @dataclass(frozen=True)
@@ -32,8 +52,12 @@ class GaitSpace:
     theta_h_max_deg: float = THETA_H_MAX_DEG
     theta_k_min_deg: float = THETA_K_MIN_DEG
     phi_rad: float = PHI_RAD
+    #: ``paper`` or a named extension of :data:`EXTENSIONS` (the bounds above apply per side too)
+    extension: str = "paper"
 
     def __post_init__(self):
+        if self.extension not in EXTENSIONS:
+            raise ValueError(f"space.extension must be one of {sorted(EXTENSIONS)}, got {self.extension!r}")
         for name in ("theta_h_min_deg", "theta_k_max_deg", "frequency_hz", "alpha_rad"):
             lo, hi = getattr(self, name)
             if not lo < hi:
@@ -50,35 +74,59 @@ class GaitSpace:
             raise ValueError(f"unknown space setting(s) {unknown}")
         kw: dict[str, Any] = {}
         for k, v in doc.items():
-            if k.endswith(("_deg", "_hz", "_rad")) and isinstance(v, (list, tuple)):
+            if k == "extension":
+                kw[k] = str(v)
+            elif k.endswith(("_deg", "_hz", "_rad")) and isinstance(v, (list, tuple)):
                 kw[k] = (float(v[0]), float(v[1]))
             else:
                 kw[k] = float(v)
         return cls(**kw)
 
     @property
+    def variables(self) -> tuple[str, ...]:
+        """The decision-vector entries of this space, in order."""
+        return EXTENSIONS[self.extension]
+
+    def _bounds(self, k: int) -> np.ndarray:
+        ranges = (self.theta_h_min_deg, self.theta_k_max_deg, self.frequency_hz)
+        if self.extension == "per_side_range":
+            ranges = (self.theta_h_min_deg, self.theta_h_min_deg, self.theta_k_max_deg, self.theta_k_max_deg,
+                      self.frequency_hz)
+        return np.array([r[k] for r in ranges] + [self.alpha_rad[k]] * 4)
+
+    @property
     def xl(self) -> np.ndarray:
-        """Lower bounds (7,)."""
-        return np.array([self.theta_h_min_deg[0], self.theta_k_max_deg[0], self.frequency_hz[0]]
-                        + [self.alpha_rad[0]] * 4)
+        """Lower bounds (n_var,)."""
+        return self._bounds(0)
 
     @property
     def xu(self) -> np.ndarray:
-        """Upper bounds (7,)."""
-        return np.array([self.theta_h_min_deg[1], self.theta_k_max_deg[1], self.frequency_hz[1]]
-                        + [self.alpha_rad[1]] * 4)
+        """Upper bounds (n_var,)."""
+        return self._bounds(1)
 
     def gaits(self, x: np.ndarray) -> GaitBatch:
-        """Decision vectors (B, 7) -> gaits (phases wrapped into [0, 2 pi))."""
+        """Decision vectors (B, n_var) -> gaits (phases wrapped into [0, 2 pi))."""
         x = np.atleast_2d(np.asarray(x, float))
-        if x.shape[1] != len(VARIABLES):
-            raise ValueError(f"decision vectors need {len(VARIABLES)} entries {VARIABLES}, got {x.shape[1]}")
-        return GaitBatch.from_arrays(x[:, 0], x[:, 1], x[:, 2], np.mod(x[:, 3:7], 2 * math.pi),
+        if x.shape[1] != len(self.variables):
+            raise ValueError(f"decision vectors need {len(self.variables)} entries {self.variables}, got {x.shape[1]}")
+        if self.extension == "per_side_range":
+            th, tk, f = x[:, 0:2][:, _SIDE], x[:, 2:4][:, _SIDE], x[:, 4]
+        else:
+            th, tk, f = x[:, 0], x[:, 1], x[:, 2]
+        return GaitBatch.from_arrays(th, tk, f, np.mod(x[:, -4:], 2 * math.pi),
                                      theta_h_max_deg=self.theta_h_max_deg, theta_k_min_deg=self.theta_k_min_deg,
                                      phi_rad=self.phi_rad)
 
     def vectors(self, gaits: GaitBatch) -> np.ndarray:
-        """Gaits (one joint range per gait) -> decision vectors (B, 7)."""
+        """Gaits -> decision vectors (B, n_var); refused when the gaits leave this space."""
+        if self.extension == "per_side_range":
+            cols = []
+            for name in ("theta_h_min_deg", "theta_k_max_deg"):
+                arr = getattr(gaits, name)
+                if not (np.all(arr[:, 0] == arr[:, 2]) and np.all(arr[:, 1] == arr[:, 3])):
+                    raise ValueError(f"{name} differs between legs of one side; per_side_range has one per side")
+                cols += [arr[:, 0], arr[:, 1]]
+            return np.column_stack(cols + [gaits.frequency_hz, gaits.alpha_rad])
         for name in ("theta_h_min_deg", "theta_k_max_deg"):
             arr = getattr(gaits, name)
             if not np.all(arr == arr[:, :1]):
@@ -88,4 +136,4 @@ class GaitSpace:
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """``n`` decision vectors drawn uniformly within the bounds."""
-        return self.xl + rng.random((n, len(VARIABLES))) * (self.xu - self.xl)
+        return self.xl + rng.random((n, len(self.variables))) * (self.xu - self.xl)

@@ -1,7 +1,8 @@
 """MLflow record of an optimisation: one run per task and model in the experiment ``optimize``.
 
-Params: the flattened settings; metrics with steps: ``hypervolume``, ``best_score`` and
-``evaluations`` per generation; final metrics from the outcome; artifacts: the gait file, the
+Params: the flattened settings; metrics with steps: ``hypervolume``, ``best_score``,
+``evaluations`` and ``unconverged`` (the population's unconverged simulations) per generation;
+``final_unconverged_gaits`` counts every unconverged simulation of the run; final metrics from the outcome; artifacts: the gait file, the
 controller file, the best-8 table (CSV, and as an MLflow table), the history and the plots.
 Tags: ``kind`` (optimize), ``campaign`` (the campaigns behind the leg model and the body drag),
 ``task``, ``model``, ``model_spec``, ``git_commit``, ``dvc_stage``.
@@ -48,7 +49,8 @@ def log_outcome(outcome: GaitOutcome, settings: Mapping[str, Any], folder: Path,
         metrics = []
         for g in outcome.result.history:
             metrics += [Metric("hypervolume", g.hypervolume, now, g.gen), Metric("best_score", g.best_score, now, g.gen),
-                        Metric("evaluations", float(g.evaluations), now, g.gen)]
+                        Metric("evaluations", float(g.evaluations), now, g.gen),
+                        Metric("unconverged", float(g.unconverged), now, g.gen)]
         final = {k: float(v) for k, v in outcome.metrics.items()
                  if isinstance(v, (int, float)) and not isinstance(v, bool) and k != "hypervolume"}
         final.update({f"tabulation_{k}": float(v) for k, v in outcome.metrics.get("tabulation", {}).items()

@@ -26,7 +26,7 @@ def summarise(traj: Trajectory, labels: Sequence[str], tail_s: float = 5.0) -> l
             "mean_forward_speed_mps": float(traj.vy_mps[i, tail].mean()),
             "mean_yaw_rate_dps": float(np.degrees(traj.yaw_rate_rps[i, tail].mean())),
             "mean_leg_thrust_n": float(traj.leg_thrust_n[i, tail].mean()),
-            "picard_residual_mps": float(traj.residual_mps[i]), "converged": bool(traj.converged[i]),
+            "fixed_point_residual_mps": float(traj.residual_mps[i]), "converged": bool(traj.converged[i]),
         })
     return out
 
@@ -43,7 +43,9 @@ def paths_figure_png(traj: Trajectory, labels: Sequence[str], max_legend: int = 
     span = max(float(np.max(np.abs(traj.x_m))), float(np.max(np.abs(traj.y_m))), 0.05)
     for i, label in enumerate(labels):
         colour = cmap(i / max(1, len(labels) - 1)) if len(labels) > 10 else cmap(i % 10)
-        ax.plot(traj.x_m[i], traj.y_m[i], color=colour, lw=1.2, label=label if i < max_legend else None)
+        ok = bool(traj.converged[i])
+        ax.plot(traj.x_m[i], traj.y_m[i], color=colour, lw=1.2, ls="-" if ok else "--",
+                label=(label if ok else f"{label} (NOT converged)") if i < max_legend else None)
         yaw = traj.yaw_rad[i, -1]
         ax.annotate("", xy=(traj.x_m[i, -1] - 0.06 * span * math.sin(yaw), traj.y_m[i, -1] + 0.06 * span * math.cos(yaw)),
                     xytext=(traj.x_m[i, -1], traj.y_m[i, -1]), arrowprops={"arrowstyle": "->", "color": colour})

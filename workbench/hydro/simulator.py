@@ -355,7 +355,7 @@ def integrate_body(robot: RobotParams, leg_planar: np.ndarray, dt_s: float) -> d
 
 
 def integrate_stepwise(robot: RobotParams, leg_forces: Callable[[int, np.ndarray], np.ndarray], n_ticks: int,
-                       batch: int, dt_s: float) -> dict[str, np.ndarray]:
+                       batch: int, dt_s: float, *, start: "BodyState | None" = None) -> dict[str, np.ndarray]:
     """The integrator itself, asking the legs' (B, 3) = (fx, fy, tz) tick by tick: ``leg_forces(n, v)``.
 
     ``v`` is the (B, 3) body velocity (vx, vy, r) at tick n. Body-frame equations with added mass
@@ -365,6 +365,11 @@ def integrate_stepwise(robot: RobotParams, leg_forces: Callable[[int, np.ndarray
     yaw and the world position step with the new velocities (rotated by the mid-step yaw).
     Passing a callable lets an instantaneous leg model be stepped directly (the tests check the
     fixed-point solution against that).
+
+    ``start`` continues from a :class:`BodyState` (the state at some tick s of an earlier
+    integration) instead of rest; the returned arrays then hold ticks s .. s + n_ticks - 1 and
+    ``leg_forces`` is still asked with the local index 0, 1, ...  Continuing gives bit-identical
+    numbers to integrating the whole span at once (the windowed solver relies on it).
     """
     b, t = batch, n_ticks
     mx, my, iz = robot.mass_x_kg, robot.mass_y_kg, robot.inertia_z_kgm2
@@ -377,10 +382,15 @@ def integrate_stepwise(robot: RobotParams, leg_forces: Callable[[int, np.ndarray
     vel = np.zeros((t, b, 3))
     pose = np.zeros((t, b, 3))
     body = np.zeros((t, b, 3))
-    v = np.zeros((b, 3))
-    x = np.zeros(b)
-    y = np.zeros(b)
-    yaw = np.zeros(b)
+    if start is None:
+        v = np.zeros((b, 3))
+        x = np.zeros(b)
+        y = np.zeros(b)
+        yaw = np.zeros(b)
+    else:
+        v, x, y, yaw = (np.array(a, float) for a in (start.v, start.x, start.y, start.yaw))
+        vel[0] = v
+        pose[0, :, 0], pose[0, :, 1], pose[0, :, 2] = x, y, yaw
     half = 0.5 * dt_s
     for n in range(t):
         f = drag.planar(v)
@@ -405,9 +415,27 @@ def integrate_stepwise(robot: RobotParams, leg_forces: Callable[[int, np.ndarray
     return out
 
 
+@dataclass(frozen=True)
+class BodyState:
+    """The body's state at one tick, (B,) or (B, 3) arrays: what a continued integration starts from."""
+
+    v: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+
+    @classmethod
+    def at(cls, state: Mapping[str, np.ndarray], n: int) -> "BodyState":
+        """The state at local tick ``n`` of an :func:`integrate_stepwise` result."""
+        return cls(np.stack([state["vx"][:, n], state["vy"][:, n], state["r"][:, n]], axis=-1),
+                   state["x"][:, n].copy(), state["y"][:, n].copy(), state["yaw"][:, n].copy())
+
+
 # -- the simulation ------------------------------------------------------------------------------
 #: the ``simulation`` section of pipelines/robot.yaml: keyword arguments of :func:`simulate`
-SIM_SETTINGS = ("duration_s", "dt_s", "tol_mps", "max_iter", "relaxation")
+SIM_SETTINGS = ("duration_s", "dt_s", "tol_mps", "max_iter", "relaxation", "method", "window_s", "max_window_s", "anderson")
+#: fixed-point schemes: ``windowed`` (default) or the whole-horizon ``picard`` iteration (kept for comparison)
+METHODS = ("windowed", "picard")
 
 
 def simulation_settings(doc: Mapping | None) -> dict:
@@ -416,36 +444,151 @@ def simulation_settings(doc: Mapping | None) -> dict:
     unknown = sorted(set(doc) - set(SIM_SETTINGS))
     if unknown:
         raise ValueError(f"unknown simulation setting(s) {unknown}; known: {list(SIM_SETTINGS)}")
-    return {k: (int(v) if k == "max_iter" else float(v)) for k, v in doc.items()}
+    out = {}
+    for k, v in doc.items():
+        if k == "method":
+            if v not in METHODS:
+                raise ValueError(f"simulation method must be one of {METHODS}, got {v!r}")
+            out[k] = str(v)
+        else:
+            out[k] = int(v) if k in ("max_iter", "anderson") else float(v)
+    return out
+
+
+class _Solve:
+    """The pieces the fixed-point schemes share: leg wrenches, the body integration, the new flow."""
+
+    def __init__(self, gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, t: np.ndarray, dt_s: float):
+        self.b, self.n = len(gaits), t.size
+        self.robot, self.dt_s = robot, dt_s
+        self.provider = leg_wrench_provider(leg_model, gaits.leg_motion(t))
+        self.planar = _planar_coefficients(robot)
+        self.calls = 0
+
+    def wrench(self, flow: np.ndarray) -> np.ndarray:
+        """(B, 4, T, 6) load-cell wrenches of all legs for a (B, 4, T) flow history."""
+        self.calls += 1
+        return self.provider(flow.reshape(4 * self.b, self.n)).reshape(self.b, 4, self.n, 6)
+
+    def swim(self, w_leg: np.ndarray, lo: int = 0, hi: int | None = None,
+             start: BodyState | None = None) -> tuple[dict, np.ndarray]:
+        """Integrate ticks lo .. hi - 1 (from ``start``, the state at tick lo; rest at 0); state and new flow."""
+        hi = self.n if hi is None else hi
+        legs = np.ascontiguousarray(np.moveaxis(_planar_sum(self.planar, w_leg[:, :, lo:hi]), 1, 0))
+        state = integrate_stepwise(self.robot, lambda k, v: legs[k], hi - lo, self.b, self.dt_s, start=start)
+        return state, leg_flow_speeds(self.robot, state["vx"], state["vy"], state["r"])
+
+
+def _periodic_guess(flow: np.ndarray, lo: int, hi: int, period_ticks: np.ndarray) -> None:
+    """Fill ticks lo .. hi - 1 of ``flow`` (B, 4, T) with its own last gait cycle (in place).
+
+    The legs' flow repeats with the gait once the swim settles, so flow(t) = flow(t - period) is a
+    good first guess for a new stretch of the horizon; before one cycle is known, the last value is held.
+    """
+    if hi <= lo or lo == 0:
+        return
+    n = np.arange(lo, hi)
+    for i, p in enumerate(period_ticks):
+        src = n - p
+        while np.any(src >= lo):  # windows longer than a cycle: reach back whole cycles
+            src = np.where(src >= lo, src - p, src)
+        if src.min() < 0:
+            flow[i, :, lo:hi] = flow[i, :, lo - 1:lo]
+            continue
+        k = np.floor(src).astype(int)
+        frac = src - k
+        row = flow[i]
+        row[:, lo:hi] = row[:, k] * (1 - frac) + row[:, np.minimum(k + 1, lo - 1)] * frac
 
 
 def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, duration_s: float = 20.0,
-             dt_s: float = DEFAULT_DT_S, tol_mps: float = 1e-4, max_iter: int = 40, relaxation: float = 0.8,
-             on_iteration: Callable[[int, np.ndarray], None] | None = None) -> Trajectory:
+             dt_s: float = DEFAULT_DT_S, tol_mps: float = 1e-5, max_iter: int = 40, relaxation: float = 1.0,
+             method: str = "windowed", window_s: float = 20.0, max_window_s: float = 60.0,
+             anderson: int = 5, on_iteration: Callable[[int, np.ndarray], None] | None = None) -> Trajectory:
     """Simulate every gait of the batch from rest for ``duration_s``; returns the :class:`Trajectory`.
 
-    The flow history of all 4B legs is found by relaxed Picard iteration: flow_{k+1} = flow_k +
-    relaxation (F(flow_k) - flow_k), starting from still water, per gait until its largest change
-    is below ``tol_mps``; a converged gait's flow is frozen, so a gait's result does not depend on
-    the rest of the batch. ``relaxation`` < 1 damps the overshoot of a plain iteration (the legs'
-    own drag falls as the robot speeds up). ``on_iteration(k, residual_per_gait)`` reports progress.
+    The flow each leg sees depends on the motion the legs cause, and a leg model takes whole
+    histories, so the flow history of all 4B legs is a fixed point: flow = F(flow), F = predict the
+    wrenches, integrate the body, read the legs' flow. F is causal (the flow at tick n depends on
+    earlier flow only; a model's one-tick look-ahead, e.g. a centred difference, is fine). The
+    default ``method="windowed"`` solves it window by window (waveform relaxation):
+
+    1. on a window of ``window_s`` (the body integrated from the converged state at the window's
+       start), iterate the relaxed step flow + w (F(flow) - flow), accelerated by Anderson mixing
+       of the last ``anderson`` iterates (0: plain relaxation), per gait, until no leg's flow in the
+       window moves by ``tol_mps``; w starts at ``relaxation`` and halves for a gait whose change
+       grows;
+    2. freeze the window, extend the flow by one gait cycle (periodic guess) and go on with a
+       window twice as long, up to ``max_window_s``;
+    3. a gait still moving after ``max_iter`` iterations in a window is solved again, from still
+       water with the others held, on windows four times shorter (down to 0.5 s);
+    4. finally one pass of F over the whole horizon: ``residual_mps`` is its largest change of any
+       leg's flow (the honest fixed-point residual) and ``converged`` says it is below
+       ``tol_mps``. An unconverged gait is a flagged result, never a silent one.
+
+    The schedule depends on the settings and the gait only, so a gait's result does not depend on
+    the rest of the batch; everything is deterministic. ``method="picard"`` is the earlier
+    whole-horizon relaxed iteration (``max_iter`` in all), which leaves gaits unconverged at 60 s
+    (docs/hydro.md has the measurements). ``iterations`` counts the leg-model calls;
+    ``on_iteration(calls, change_per_gait)`` reports progress.
     """
     if duration_s <= 0 or dt_s <= 0:
         raise ValueError("duration_s and dt_s must be positive")
     if not 0 < relaxation <= 1:
         raise ValueError("relaxation must be in (0, 1]")
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if window_s <= 0 or max_window_s <= 0 or max_iter < 1:
+        raise ValueError("window_s and max_window_s must be positive and max_iter at least 1")
     b = len(gaits)
     n_ticks = int(round(duration_s / dt_s)) + 1
     t = np.arange(n_ticks) * dt_s
-    provider = leg_wrench_provider(leg_model, gaits.leg_motion(t))
-    planar = _planar_coefficients(robot)
+    solve = _Solve(gaits, leg_model, robot, t, dt_s)
     flow = np.zeros((b, 4, n_ticks))
+    failed = np.zeros(b, bool)
+    if method == "picard":
+        w_leg, state, residual, k = _picard(solve, flow, tol_mps, max_iter, relaxation, on_iteration)
+    else:
+        # gaits that a window gave up are solved again from still water on windows four times shorter
+        # (the others held); whether a gait is retried depends on that gait alone, not on the batch
+        todo = np.ones(b, bool)
+        attempt = 0
+        while True:
+            trial = np.where(todo[:, None, None], 0.0, flow)
+            gave_up = ~todo
+            scale = 4.0 ** attempt
+            _windowed(solve, trial, gaits, tol_mps, max_iter, relaxation, window_s / scale,
+                      max(max_window_s / scale, window_s / scale), gave_up, on_iteration, anderson)
+            flow[todo] = trial[todo]
+            todo &= gave_up
+            attempt += 1
+            if not todo.any() or window_s / 4.0 ** attempt < MIN_WINDOW_S:
+                break
+        failed = todo
+        # the honest check: one pass over the whole horizon with the flow found
+        w_leg = solve.wrench(flow)
+        state, new_flow = solve.swim(w_leg)
+        residual = np.abs(new_flow - flow).max(axis=(1, 2))
+        if on_iteration is not None:
+            on_iteration(solve.calls, residual.copy())
+        k = solve.calls
+    w_body = legs_to_body(robot, w_leg)
+    zeros = np.zeros_like(state["fx"])
+    body = np.stack([state["fx"], state["fy"], zeros, zeros, zeros, state["tz"]], axis=-1)
+    return Trajectory(t_s=t, x_m=state["x"], y_m=state["y"], yaw_rad=state["yaw"], vx_mps=state["vx"],
+                      vy_mps=state["vy"], yaw_rate_rps=state["r"], leg_wrench=w_body, body_wrench=body,
+                      leg_flow_mps=flow, gaits=gaits, model=getattr(leg_model, "name", "model"), iterations=k,
+                      residual_mps=residual, converged=(residual < tol_mps) & ~failed)
+
+
+def _picard(solve: _Solve, flow, tol_mps, max_iter, relaxation, on_iteration):
+    """Whole-horizon relaxed Picard iteration (the earlier scheme); updates ``flow`` in place."""
+    b = solve.b
     active = np.ones(b, bool)
     residual = np.full(b, np.inf)
     for k in range(1, max_iter + 1):
-        w_leg = provider(flow.reshape(4 * b, n_ticks)).reshape(b, 4, n_ticks, 6)
-        state = integrate_body(robot, _planar_sum(planar, w_leg), dt_s)
-        new_flow = leg_flow_speeds(robot, state["vx"], state["vy"], state["r"])
+        w_leg = solve.wrench(flow)
+        state, new_flow = solve.swim(w_leg)
         change = np.abs(new_flow - flow).max(axis=(1, 2))
         residual = np.where(active, change, residual)
         if on_iteration is not None:
@@ -454,11 +597,118 @@ def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, 
         active &= ~done
         if not active.any():
             break
-        flow = np.where(active[:, None, None], flow + relaxation * (new_flow - flow), flow)
-    w_body = legs_to_body(robot, w_leg)
-    zeros = np.zeros_like(state["fx"])
-    body = np.stack([state["fx"], state["fy"], zeros, zeros, zeros, state["tz"]], axis=-1)
-    return Trajectory(t_s=t, x_m=state["x"], y_m=state["y"], yaw_rad=state["yaw"], vx_mps=state["vx"],
-                      vy_mps=state["vy"], yaw_rate_rps=state["r"], leg_wrench=w_body, body_wrench=body,
-                      leg_flow_mps=flow, gaits=gaits, model=getattr(leg_model, "name", "model"), iterations=k,
-                      residual_mps=residual, converged=residual < tol_mps)
+        flow[:] = np.where(active[:, None, None], flow + relaxation * (new_flow - flow), flow)
+    return w_leg, state, residual, k
+
+
+#: no leg of a swimming robot sees a flow this fast (m/s); an iterate beyond it is diverging
+FLOW_LIMIT_MPS = 5.0
+#: the shortest window a retry uses (s)
+MIN_WINDOW_S = 0.5
+#: ticks at a window's end that are solved again with the next window (a leg model's one-tick look-ahead)
+OVERLAP_TICKS = 2
+
+
+def window_schedule(n_ticks: int, dt_s: float, window_s: float, max_window_s: float) -> list[tuple[int, int]]:
+    """The windows (lo, hi) of ticks: ``window_s`` long, doubling up to ``max_window_s``, overlapping by 2 ticks.
+
+    The schedule depends on the settings and the horizon only, never on the batch, so a gait's
+    result does not depend on the other gaits it is simulated with.
+    """
+    width = max(OVERLAP_TICKS + 2, int(round(window_s / dt_s)))
+    cap = max(width, int(round(max_window_s / dt_s)))
+    out, lo = [], 0
+    while True:
+        hi = min(n_ticks, lo + width)
+        out.append((lo, hi))
+        if hi >= n_ticks:
+            return out
+        lo = hi - OVERLAP_TICKS
+        width = min(2 * width, cap)
+
+
+class _Anderson:
+    """Anderson acceleration (type II, per gait) of the relaxed fixed-point step on a window's flow.
+
+    With the last m iterates x_i and residuals f_i = F(x_i) - x_i, the step is
+    w f - sum_i gamma_i (dx_i + w df_i), gamma minimising |f - sum gamma_i df_i| (least squares,
+    lightly regularised). A gait whose residual grew restarts its history.
+    """
+
+    def __init__(self, b: int, depth: int):
+        self.depth = depth
+        self.dx: list[np.ndarray] = []
+        self.df: list[np.ndarray] = []
+        self.prev: tuple[np.ndarray, np.ndarray] | None = None
+
+    def step(self, x: np.ndarray, f: np.ndarray, omega: np.ndarray, restart: np.ndarray) -> np.ndarray:
+        if self.prev is not None:
+            self.dx.append(x - self.prev[0])
+            self.df.append(f - self.prev[1])
+            if len(self.dx) > self.depth:
+                self.dx.pop(0)
+                self.df.pop(0)
+        self.prev = (x.copy(), f.copy())
+        w = omega[:, None]
+        if not self.dx:
+            return w * f
+        dx, df = np.stack(self.dx, 1), np.stack(self.df, 1)          # (B, m, n)
+        gram = df @ np.swapaxes(df, 1, 2)                             # (B, m, m)
+        scale = np.trace(gram, axis1=1, axis2=2)[:, None, None] / gram.shape[1] + 1e-300
+        gram = gram + 1e-10 * scale * np.eye(gram.shape[1])
+        gamma = np.linalg.solve(gram, (df @ f[:, :, None]))[..., 0]    # (B, m)
+        gamma = np.where(restart[:, None], 0.0, gamma)
+        if restart.any():
+            for arr in (*self.dx, *self.df):
+                arr[restart] = 0.0
+        return w * f - np.einsum("bm,bmn->bn", gamma, dx + w[:, None] * df)
+
+
+def _windowed(solve: _Solve, flow, gaits: GaitBatch, tol_mps, max_iter, relaxation, window_s, max_window_s,
+              failed, on_iteration, anderson: int = 0) -> None:
+    """Waveform relaxation on growing windows (see :func:`simulate`); updates ``flow`` and ``failed`` in place."""
+    b, n_ticks, dt = solve.b, solve.n, solve.dt_s
+    period = 1.0 / (gaits.frequency_hz * dt)           # ticks per gait cycle (not an integer)
+    start, filled = None, 1                             # the state at the window's first tick; ticks guessed so far
+    windows = window_schedule(n_ticks, dt, window_s, max_window_s)
+    for j, (lo, hi) in enumerate(windows):
+        guess_to = min(n_ticks, hi + OVERLAP_TICKS)
+        if guess_to > filled:
+            _periodic_guess(flow, filled, guess_to, period)
+            filled = guess_to
+        omega = np.full(b, relaxation)
+        last = np.full(b, np.inf)
+        active = ~failed
+        state = None
+        acc = _Anderson(b, anderson) if anderson else None
+        for _ in range(max_iter):
+            w_leg = solve.wrench(flow)
+            state, new = solve.swim(w_leg, lo, hi, start)
+            x = flow[:, :, lo:hi]
+            change = np.abs(new - x).max(axis=(1, 2))
+            # a diverging gait (non-finite, or flows no swimmer sees) is given up before it poisons the batch
+            wild = active & ~(np.abs(new).max(axis=(1, 2)) < FLOW_LIMIT_MPS)
+            if wild.any():
+                failed |= wild
+                active &= ~wild
+                change = np.where(wild, np.inf, change)
+            if on_iteration is not None:
+                on_iteration(solve.calls, np.where(active | wild, change, 0.0))
+            grew = active & (change > last)
+            omega = np.where(grew, np.maximum(0.5 * omega, 0.05), omega)
+            last = np.where(active, change, last)
+            active &= ~(change < tol_mps)
+            if not active.any():
+                break
+            f = np.where(active[:, None, None], new - x, 0.0)
+            step = omega[:, None, None] * f
+            if acc is not None:
+                step = acc.step(x.reshape(b, -1), f.reshape(b, -1), omega, grew).reshape(x.shape)
+            nxt = x + step
+            # an accelerated step that leaves the physical range falls back to the relaxed one
+            wild_step = ~(np.abs(nxt).max(axis=(1, 2)) < FLOW_LIMIT_MPS)
+            nxt = np.where(wild_step[:, None, None], x + omega[:, None, None] * f, nxt)
+            flow[:, :, lo:hi] = np.where(active[:, None, None], nxt, x)
+        failed |= active                               # not converged in its window: flagged, not iterated further
+        if j + 1 < len(windows):
+            start = BodyState.at(state, windows[j + 1][0] - lo)

@@ -742,7 +742,13 @@ def read_gait_file(path: Path) -> dict:
 
 
 def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None) -> list[PoolTrial]:
-    """Simulate the best ``s.best`` retained gaits of each model and task with the full-body simulator."""
+    """Simulate the best ``s.best`` retained gaits of each model and task with the full-body simulator.
+
+    The simulator's settings (fixed-point scheme, tolerance, iterations) come from the robot
+    file's ``simulation`` section (pipelines/robot.yaml); the duration covers the 60 s cap plus
+    ``post_s``. A trajectory whose fixed-point iteration did not converge is refused with a
+    one-line ModelError naming the gait file and the solution: it is not a trial's truth.
+    """
     try:
         from workbench.hydro.robot import RobotParams, load_robot
         from workbench.hydro.simulator import GaitBatch, simulate
@@ -753,7 +759,7 @@ def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None
 
     gaits_dir = Path(gaits_dir)
     # gaits that share the fixed constants (theta_h_max, theta_k_min, phi; the file's "fixed") swim together
-    groups: dict[tuple, list[tuple[str, str, int, dict]]] = {}
+    groups: dict[tuple, list[tuple[str, str, int, dict, Path]]] = {}
     for model in s.models:
         for task in s.tasks:
             path = gaits_dir / f"{task}-{model}.json"
@@ -762,23 +768,45 @@ def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None
             key = tuple(sorted((k, float(v)) for k, v in fixed.items()
                                if k in ("theta_h_max_deg", "theta_k_min_deg", "phi_rad")))
             for sol in doc["solutions"][: s.best]:
-                groups.setdefault(key, []).append((model, task, int(sol["rank"]), sol["params"]))
+                groups.setdefault(key, []).append((model, task, int(sol["rank"]), sol["params"], path))
     robot_path = Path(s.robot_params)
     robot = load_robot(robot_path) if robot_path.is_file() else RobotParams()
+    settings = _sim_settings(robot_path)
     leg_model = _physics(s.physics)
     made: dict[tuple[str, str, int], PoolTrial] = {}
     for key, todo in groups.items():
         try:
-            batch = GaitBatch.from_params([p for *_, p in todo], **dict(key))
+            batch = GaitBatch.from_params([p for *_, p, _ in todo], **dict(key))
         except (ValueError, TypeError) as exc:
             raise ContractError(f"bad gait parameters: {exc}", path=gaits_dir) from None
-        traj = simulate(batch, leg_model, robot, duration_s=CAP_S + s.post_s + 1.0, dt_s=s.sim_dt_s)
-        for i, (model, task, rank, _) in enumerate(todo):
+        traj = simulate(batch, leg_model, robot, duration_s=CAP_S + s.post_s + 1.0, dt_s=s.sim_dt_s, **settings)
+        for i, (model, task, rank, _, path) in enumerate(todo):
+            if not traj.converged[i]:
+                raise ModelError(
+                    f"solution rank {rank}: the swim on '{s.physics}' physics did not converge (fixed-point "
+                    f"residual {traj.residual_mps[i]:.2g} m/s, tolerance {settings.get('tol_mps', 1e-4):g}, "
+                    f"{traj.iterations} leg-model calls)", path=path,
+                    hint="its trajectory would be an artefact; see docs/hydro.md (simulation settings)")
             label = s.model_labels.get(model, model.upper())
             made[(model, task, rank)] = PoolTrial(f"{model}-{task}-{rank}", task, label, rank, traj.t_s, traj.x_m[i],
                                                   traj.y_m[i], traj.yaw_rad[i], gait_hz=float(batch.frequency_hz[i]))
     # the order of the gait files (model, task, rank), whatever the grouping
     return [made[k] for k in sorted(made, key=lambda k: (s.models.index(k[0]), s.tasks.index(k[1]), k[2]))]
+
+
+def _sim_settings(robot_path: Path) -> dict:
+    """The robot file's fixed-point settings (scheme, tolerance, iterations), without duration and tick."""
+    from workbench.hydro.simulator import simulation_settings
+
+    if not robot_path.is_file():
+        return {}
+    from workbench.project import load_params
+
+    try:
+        doc = simulation_settings(load_params(robot_path).get("simulation"))
+    except ValueError as exc:
+        raise ContractError(str(exc), path=robot_path) from None
+    return {k: v for k, v in doc.items() if k not in ("duration_s", "dt_s")}
 
 
 def _physics(spec: str):
