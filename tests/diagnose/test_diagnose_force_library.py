@@ -186,3 +186,20 @@ def test_kc_is_a_property_of_the_run_and_the_rotating_term_vanishes_without_rota
                                   np.full(50, 0.2), np.zeros(50), np.zeros(50))
     assert np.abs(LegKinematics(still).omega_v_t).max() == 0.0
     assert np.abs(k1.omega_v_t).max() > 0.1 * np.abs(k1.rel_acc_n).max()   # a paddling leg: not small
+
+
+def test_truth_reference_gives_the_rich_truths_values_in_the_librarys_terms():
+    from workbench.diagnose.library import truth_reference
+    from workbench.virtual_lab.physics import TrueLegModel
+
+    ref = truth_reference(TrueLegModel("rich").describe())
+    m_a = 1000 * 0.579 * np.pi / 4 * 0.06 ** 3                      # DNV flat plate, 98 g
+    assert ref["rotating_added_mass"]["m_a_kg"] == pytest.approx(m_a)
+    assert ref["added_mass_kc"]["m_kc_kg"] == pytest.approx(0.25 * m_a)
+    # the EF puts 2 pi rho a^3 + 10 g on a_n; the truth m_a + 10 g (its web mass)
+    assert ref["added_mass_error"]["delta_kg"] == pytest.approx(m_a + 0.010 - 2 * np.pi * 1000 * 0.03 ** 3 - 0.010)
+    assert ref["wagner_lag"]["a_slow"] == pytest.approx(0.165 * 1.17)
+    assert ref["wagner_lag"]["tau_fast_chords"] == pytest.approx(1 / 0.6)
+    assert ref["link_weight_buoyancy"]["net_n"] == pytest.approx(
+        9.81 * ((1000 * 18.5e-6 - 0.020) + (1000 * 11e-6 - 0.012) + (1000 * 10.8e-6 - 0.010)))   # -0.017 N
+    assert truth_reference(TrueLegModel("ef").describe()) == {}
