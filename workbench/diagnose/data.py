@@ -57,6 +57,8 @@ class RunSet:
     freq: np.ndarray           # (B,) gait frequency (Hz), NaN if unknown
     params: list[dict]
     heldout: bool
+    #: (B, T, 6) known addition to the model's (low-passed) prediction, e.g. a reference misfit; None: none
+    offset: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -76,6 +78,8 @@ class Campaign:
     dt_s: float
     settings: DataSettings
     skipped: list[str] = field(default_factory=list)
+    #: run index -> (T, 6) known addition to the model's prediction (``--reference``)
+    offsets: dict[int, np.ndarray] | None = None
 
     @property
     def sets(self) -> list[RunSet]:
@@ -147,8 +151,9 @@ def derivative4(x: np.ndarray, dt: float) -> np.ndarray:
     return out
 
 
-def make_runset(runs: list[RunMotion], index: list[int], dt: float, settings: DataSettings, heldout: bool) -> RunSet:
-    """Pad ``runs`` to a common length and mark their analysis and rest ticks."""
+def make_runset(runs: list[RunMotion], index: list[int], dt: float, settings: DataSettings, heldout: bool,
+                offsets: dict[int, np.ndarray] | None = None) -> RunSet:
+    """Pad ``runs`` to a common length and mark their analysis and rest ticks (``offsets`` by run index)."""
     n = max(len(r.time_s) for r in runs)
     b = len(runs)
     time = np.empty((b, n))
@@ -177,10 +182,16 @@ def make_runset(runs: list[RunMotion], index: list[int], dt: float, settings: Da
     motion = LegMotion.from_arrays(dt, arrays["th"], arrays["tk"], arrays["wh"], arrays["wk"], arrays["u"],
                                    derivative4(arrays["wh"], dt), derivative4(arrays["wk"], dt))
     freq = np.array([float(r.params.get("frequency_hz", np.nan)) for r in runs])
+    off = None
+    if offsets:
+        off = np.zeros((b, n, 6))
+        for i, j in enumerate(index):
+            if int(j) in offsets:
+                off[i] = _pad(offsets[int(j)], n)
     return RunSet(run_ids=tuple(r.run_id for r in runs), index=np.asarray(index), dt_s=dt, time_s=time,
                   motion=motion, y=y, valid=valid, fit=fit, rest=rest,
                   flow=np.array([r.flow_speed_mps for r in runs]), freq=freq,
-                  params=[dict(r.params) for r in runs], heldout=heldout)
+                  params=[dict(r.params) for r in runs], heldout=heldout, offset=off)
 
 
 def _chunks(idx: list[int], runs: list[RunMotion], size: int) -> list[list[int]]:

@@ -69,7 +69,8 @@ class Problem:
         ds = self.campaign.settings
         train = sorted(train, key=lambda i: len(runs[i].time_s))
         size = max(1, ds.chunk_runs)
-        return [make_runset([runs[i] for i in train[j:j + size]], train[j:j + size], self.campaign.dt_s, ds, False)
+        return [make_runset([runs[i] for i in train[j:j + size]], train[j:j + size], self.campaign.dt_s, ds, False,
+                            self.campaign.offsets)
                 for j in range(0, len(train), size)]
 
     def sets(self, which: str) -> list[tuple[RunSet, object]]:

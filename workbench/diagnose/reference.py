@@ -8,17 +8,17 @@ each modulated by Legendre polynomials of the time in the run up to ``envelope_d
 settles slowly through a run, such as a circulatory state starting from rest), per channel.
 That waveform is indexed by the run's motion parameters and flow speed.
 
-The new campaign's readings are then corrected run by run: the waveform of the reference run
-with the same motion parameters and flow speed (or, failing that, the nearest one in
-normalised parameter space, flagged) is subtracted from the moving part of each run. The
+The base model is then corrected run by run: the waveform of the reference run with the same
+motion parameters and flow speed (or, failing that, the nearest one in normalised parameter
+space, counted) is added to the model's low-passed prediction over the moving part of each run,
+before the filter and sensor stages (a mount mode or crosstalk acts on it as on the true wrench). The
 diagnosis that follows sees only what differs from the reference: a new servo, load cell, mount
 or pump, a drift; the base model's own misfit (which repeats every stroke in both campaigns)
 is gone. Rig noise, per-run biases and drifts are not stroke-locked and are not learned.
 
-Limits: the correction is additive. An effect that acts on the whole true wrench (crosstalk, a
-mount mode) acts on the misfit too, which the corrected base does not see (second order: the
-misfit times the effect); a servo lag shifts the misfit's phase as well (the lag times the
-misfit's rate). Parameter sets the reference lacks get their nearest neighbour's waveform,
+Limits: the waveform is a function of time in the run, not of the motion: a servo lag that
+delays the motion delays the misfit too, which the corrected base does not follow (second
+order: the lag times the misfit's rate). Parameter sets the reference lacks get their nearest neighbour's waveform,
 which is only as good as the grid is dense.
 """
 
@@ -73,35 +73,35 @@ class ReferenceCorrection:
         return _basis(time_s, f, k, self.envelope_degree, self.spans[i]) @ c, exact
 
     def apply(self, campaign: Campaign) -> Campaign:
-        """The campaign with each run's reference waveform subtracted from its readings (moving part only).
+        """The campaign with each run's reference waveform as a known part of the prediction.
 
-        Both the runs (which the searches' subsamples are cut from) and the padded batches are
-        corrected; the campaign's arrays are replaced, not edited, so the frame stays as read.
+        The waveform is added to the base model's low-passed prediction (``RunSet.offset``), so
+        filter and sensor effects (a mount mode, crosstalk) act on it as on the true wrench.
         """
         import dataclasses
 
         self.matched = self.nearest = 0
-        runs = []
-        for r in campaign.runs:
+        offsets: dict[int, np.ndarray] = {}
+        for i, r in enumerate(campaign.runs):
             moving = r.time_s >= 0
             w, exact = self.waveform(dict(r.params), float(r.flow_speed_mps),
                                      float(r.params.get("frequency_hz", np.nan)), r.time_s[moving])
-            y = np.array(r.wrench, dtype=float, copy=True)
-            y[moving] -= w
-            runs.append(dataclasses.replace(r, wrench=y))
+            off = np.zeros((len(r.time_s), 6))
+            off[moving] = w
+            offsets[i] = off
             self.matched += int(exact)
             self.nearest += int(not exact)
         sets = []
         for rs in campaign.train_sets + campaign.heldout_sets:
-            y = rs.y.copy()
-            for b in range(rs.shape[0]):
-                r = runs[int(rs.index[b])]
-                k = len(r.time_s)
-                y[b, :k] = r.wrench
-                y[b, k:] = r.wrench[-1]
-            sets.append(dataclasses.replace(rs, y=y))
+            b, n = rs.shape
+            off = np.zeros((b, n, 6))
+            for k in range(b):
+                o = offsets[int(rs.index[k])]
+                off[k, :len(o)] = o
+                off[k, len(o):] = o[-1]
+            sets.append(dataclasses.replace(rs, offset=off))
         nt = len(campaign.train_sets)
-        return dataclasses.replace(campaign, runs=runs, train_sets=sets[:nt], heldout_sets=sets[nt:])
+        return dataclasses.replace(campaign, train_sets=sets[:nt], heldout_sets=sets[nt:], offsets=offsets)
 
 
 def _key(params: dict, flow: float) -> str:

@@ -58,6 +58,8 @@ class SelectionSettings:
     #: a fitted structural mode damped more than this is a delay in disguise, not a mount mode
     #: (mount and sting modes are lightly damped, zeta << 0.3)
     max_mode_zeta: float = 0.3
+    #: a flow tone may leave at most this share of its line's excess power (above the floor)
+    tone_line_left: float = 0.4
     #: a claim needs its 95 % interval clear of zero (z = 1.96) on at least one magnitude parameter
     interval_z: float = 1.96
 

@@ -1,0 +1,242 @@
+"""The planted-effect battery of issue 13: plant rig effects into raw rich-truth campaigns, diagnose, score.
+
+Used by ``tests/diagnose/test_diagnose_battery.py`` (slow) and by
+``benchmarks/diagnose_battery.py``, which prints the confusion table (planted against named),
+each effect's parameter error and the share of the planted held-out error removed.
+
+Campaigns: the virtual lab's rich truth (physics the EF lacks: sin(alpha) normal force, Wagner
+lag, KC-dependent added mass, links, weight), shrunk to a few parameter sets (the protocol is the
+demo's: every set at every flow speed, a few cycles). The *reference* campaign (seed 1) and the
+*new* campaign (seed 2) are two measurements of the same rig: same grid, other noise, biases,
+drifts and clocks. Effects are planted into copies of the new campaign's raw CSV files by
+``planting.py`` (formulas of its own), then the copy goes through ``workbench ingest``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import planting as P
+
+SPEEDS = (0.0, 0.12, 0.25)
+CYCLES = 4
+#: parameter sets (theta_h_min, theta_k_max, f, phi) spread over the paper's ranges
+GRID = [
+    (10.0, -20.0, 0.3, np.pi / 3), (-10.0, -40.0, 0.4, 2 * np.pi / 3), (-30.0, -60.0, 0.5, np.pi),
+    (-50.0, -80.0, 0.6, 4 * np.pi / 3), (10.0, -60.0, 0.6, 5 * np.pi / 3), (-30.0, -20.0, 0.3, 2 * np.pi / 3),
+    (-10.0, -80.0, 0.5, np.pi / 3), (-50.0, -40.0, 0.4, np.pi), (10.0, -40.0, 0.5, 4 * np.pi / 3),
+    (-30.0, -80.0, 0.4, 5 * np.pi / 3), (-50.0, -20.0, 0.5, 2 * np.pi / 3), (-10.0, -60.0, 0.3, np.pi),
+]
+
+
+def grid(n_sets: int) -> list[dict]:
+    """The first ``n_sets`` sets as manifest parameters."""
+    return [dict(theta_h_min_deg=a, theta_h_max_deg=-100.0, theta_k_min_deg=80.0, theta_k_max_deg=b,
+                 frequency_hz=f, phi_rad=p, alpha_rad=0.0) for a, b, f, p in GRID[:n_sets]]
+
+
+def rich_campaign(root: Path, seed: int, n_sets: int = 12) -> Path:
+    """A rich-truth virtual tunnel campaign (CSV pairs), generated once per folder."""
+    from workbench.virtual_lab.tunnel import generate_tunnel
+
+    name = f"rich-s{seed}-n{n_sets}"
+    out = root / name
+    if not (out / "campaign.toml").is_file():
+        generate_tunnel(out, seed=seed, truth="rich", grid=grid(n_sets), cycles=CYCLES, flow_speeds=SPEEDS,
+                        campaign_id=name)
+    return out
+
+
+@dataclass
+class Case:
+    """A planting: what is planted, and what a right diagnosis names."""
+
+    name: str
+    plants: Callable[[], list]
+    #: effect -> planted canonical parameters (compared within 20 %); an empty dict: named, parameters
+    #: not comparable (another parametrisation of the same physics)
+    expected: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: effects of the library that also name this physics (a static load by a spread weight)
+    family: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    #: out-of-library disturbances: (frequency_hz, channels) that must come back as unexplained lines
+    lines: list[tuple[float, tuple[str, ...]]] = field(default_factory=list)
+
+
+SINGLES = [
+    Case("servo_dead_60ms", lambda: [P.servo_dead_time(0.06)], {"servo_lag": {"tau_s": 0.06}}),
+    Case("servo_dead_25ms", lambda: [P.servo_dead_time(0.025)], {"servo_lag": {"tau_s": 0.025}}),
+    Case("crosstalk_fz_from_fy_3pc", lambda: [P.crosstalk("fz_n", "fy_n", 0.03)],
+         {"loadcell_crosstalk": {"x_fz_fy": 0.03}}),
+    Case("crosstalk_tx_from_fz_2pc", lambda: [P.crosstalk("tx_nm", "fz_n", 0.02)],
+         {"loadcell_crosstalk": {"x_tx_fz": 0.02}}),
+    Case("drift_fz_1.5mN_per_s", lambda: [P.drift("fz_n", 0.0015)], {"sensor_drift": {"rate_fz_n_per_s": 0.0015}}),
+    Case("mount_mode_4.5Hz", lambda: [P.mode(4.5, 0.08)], {"structural_resonance": {"f_n_hz": 4.5, "zeta": 0.08}}),
+    Case("static_hip_torque", lambda: [P.hip_weight(0.003)], {"leg_weight_buoyancy": {}},
+         family={"leg_weight_buoyancy": ("leg_weight_buoyancy", "link_weight_buoyancy")}),
+    Case("flow_tone_2Hz_5pc", lambda: [P.flow_tone(2.0, 0.05)],
+         {"flow_unsteadiness": {"tone_hz": 2.0, "tone_fraction": 0.05}}),
+    Case("vibration_3.3Hz", lambda: [P.vibration(3.3, {"fy_n": 0.01, "fz_n": 0.01})],
+         lines=[(3.3, ("fy_n", "fz_n"))]),
+]
+
+#: servos planted by re-timing the command log: the leg's actual motion (and so the force) is the
+#: reference campaign's, the command leads it. Valid without a reference (the model sees the command).
+COMMAND_SERVOS = [
+    Case("servo_cmd_10ms_dead_40ms_lag", lambda: [P.servo(dead_s=0.01, lag_s=0.04)], {"servo_lag": {"tau_s": 0.05}}),
+    Case("servo_cmd_lag_25ms", lambda: [P.servo(lag_s=0.025)], {"servo_lag": {"tau_s": 0.025}}),
+]
+
+PAIRS = [
+    ("servo_dead_60ms", "drift_fz_1.5mN_per_s"),
+    ("crosstalk_fz_from_fy_3pc", "mount_mode_4.5Hz"),
+    ("static_hip_torque", "vibration_3.3Hz"),
+]
+
+
+def case(name: str) -> Case:
+    """A single case by name."""
+    return next(c for c in SINGLES + COMMAND_SERVOS if c.name == name)
+
+
+def pair(a: str, b: str) -> Case:
+    """Two cases planted together."""
+    ca, cb = case(a), case(b)
+    return Case(f"{a}+{b}", lambda: ca.plants() + cb.plants(), {**ca.expected, **cb.expected},
+                {**ca.family, **cb.family}, ca.lines + cb.lines)
+
+
+def all_cases(with_reference: bool = True) -> list[Case]:
+    """Singles, then pairs (command-log servos only without a reference)."""
+    return SINGLES + ([] if with_reference else COMMAND_SERVOS) + [pair(a, b) for a, b in PAIRS]
+
+
+# ------------------------------------------------------------------------------ running
+class Bench:
+    """Campaigns, their ingested frames and clean diagnoses, made once per folder and model."""
+
+    def __init__(self, root: Path, n_sets: int = 12, max_runs: int = 0):
+        self.root = Path(root)
+        self.n_sets = n_sets
+        self.max_runs = max_runs
+        self._frames: dict[str, object] = {}
+        self._clean: dict[tuple, object] = {}
+
+    def frame(self, folder: Path):
+        from workbench.ingest import ingest_campaign
+
+        key = str(folder)
+        if key not in self._frames:
+            self._frames[key] = ingest_campaign(folder, params={"workers": 1}).frame
+        return self._frames[key]
+
+    def reference(self):
+        return self.frame(rich_campaign(self.root, 1, self.n_sets))
+
+    def new_campaign(self) -> Path:
+        return rich_campaign(self.root, 2, self.n_sets)
+
+    def diagnose(self, frame, model_spec: str, with_reference: bool):
+        import dataclasses
+
+        from workbench.diagnose.loop import DiagnoseSettings, diagnose
+        from workbench.hydro.legmodel import load_leg_model
+
+        s = DiagnoseSettings()
+        s = dataclasses.replace(s, data=dataclasses.replace(s.data, max_runs=self.max_runs))
+        model = _model(model_spec)
+        return diagnose(frame, model, model_spec, settings=s,
+                        reference=self.reference() if with_reference else None)
+
+    def clean(self, model_spec: str, with_reference: bool):
+        key = (model_spec, with_reference)
+        if key not in self._clean:
+            self._clean[key] = self.diagnose(self.frame(self.new_campaign()), model_spec, with_reference)
+        return self._clean[key]
+
+    def run(self, c: Case, model_spec: str, with_reference: bool) -> dict:
+        t0 = time.perf_counter()
+        dst = P.copy_campaign(self.new_campaign(), self.root / f"p-{_slug(c.name)}", c.plants())
+        d = self.diagnose(self.frame(dst), model_spec, with_reference)
+        out = score(c, d, self.clean(model_spec, with_reference))
+        out["seconds"] = time.perf_counter() - t0
+        return out
+
+
+_MODELS: dict[str, object] = {}
+
+
+def _model(spec: str):
+    from workbench.hydro.legmodel import load_leg_model
+
+    if spec not in _MODELS:
+        _MODELS[spec] = load_leg_model(spec)
+    return _MODELS[spec]
+
+
+def _slug(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_" else "-" for ch in name.lower())[:60]
+
+
+def score(c: Case, d, clean) -> dict:
+    """What a diagnosis named against what was planted, parameter errors and the error removed."""
+    from workbench.contract.columns import WRENCH_CHANNELS
+
+    named = {e.name: e for e in d.effects}
+    clean_names = {e.name for e in clean.effects}
+    hits, param_err = {}, {}
+    for eff, params in c.expected.items():
+        names = c.family.get(eff, (eff,))
+        got = next((named[n] for n in names if n in named), None)
+        hits[eff] = got.name if got else None
+        if got is not None and got.name == eff:
+            for k, v in params.items():
+                g = got.params.get(k)
+                param_err[f"{eff}.{k}"] = (abs(g - v) / abs(v)) if isinstance(g, (int, float)) else None
+    family = {n for eff in c.expected for n in c.family.get(eff, (eff,))}
+    extra = sorted(set(named) - family - clean_names)
+    lines_ok = []
+    for f, chans in c.lines:
+        ok = any(u.kind == "narrowband" and u.frequency_hz is not None and abs(u.frequency_hz - f) < 0.1
+                 and set(chans) <= set(u.channels) for u in d.unexplained)
+        lines_ok.append(ok)
+    ch = list(WRENCH_CHANNELS)
+    b = np.array([d.mse_before[k] for k in ch])
+    a = np.array([d.mse_after[k] for k in ch])
+    cb = np.array([clean.mse_before[k] for k in ch])
+    ca = np.array([clean.mse_after[k] for k in ch])
+    added = b - cb
+    removed = (b - a) - (cb - ca)
+    hit = added > 0.05 * cb
+    share = float((removed[hit] / cb[hit]).sum() / (added[hit] / cb[hit]).sum()) if hit.any() else None
+    return {"case": c.name, "named": sorted(named), "hits": hits, "param_err": param_err, "extra": extra,
+            "lines_ok": lines_ok, "removed_share": share, "channels": [k for k, h in zip(ch, hit) if h],
+            "unexplained": [(u.kind, u.channels, None if u.frequency_hz is None else round(u.frequency_hz, 2))
+                            for u in d.unexplained],
+            "ambiguous": {e.name: e.ambiguous_with for e in d.effects if e.ambiguous_with},
+            "params": {e.name: {k: (round(v, 5) if isinstance(v, float) else v) for k, v in e.params.items()}
+                       for e in d.effects}}
+
+
+def table(results: list[dict], title: str) -> str:
+    """Confusion table (planted against named) and per-case numbers, as Markdown."""
+    lines = [f"### {title}", "", "| planted | named | parameter error | planted error removed | "
+             "lines | extra claims | s |", "|---|---|---|---|---|---|---|"]
+    for r in results:
+        hits = ", ".join(f"{k}->{v or 'MISSED'}" for k, v in r["hits"].items()) or "-"
+        pe = ", ".join(f"{k.split('.', 1)[1]} {v:.0%}" if v is not None else f"{k} ?" for k, v in r["param_err"].items())
+        sh = "-" if r["removed_share"] is None else f"{r['removed_share']:.0%}"
+        lines.append(f"| {r['case']} | {hits} | {pe or '-'} | {sh} | {r['lines_ok'] or '-'} | "
+                     f"{', '.join(r['extra']) or '-'} | {r['seconds']:.0f} |")
+    planted = [v for r in results for v in r["hits"].values()]
+    named = sum(v is not None for v in planted)
+    perr = [v for r in results for v in r["param_err"].values()]
+    within = sum(v is not None and v <= 0.2 for v in perr)
+    shares = [r["removed_share"] for r in results if r["removed_share"] is not None and r["hits"]]
+    lines += ["", f"named {named}/{len(planted)} planted in-library effects; parameters within 20 %: "
+              f"{within}/{len(perr)}; planted held-out error removed (median over cases): "
+              f"{np.median(shares):.0%}" if shares else "", ""]
+    return "\n".join(lines)
