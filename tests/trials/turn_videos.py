@@ -69,6 +69,38 @@ class TurnCase:
 
 
 @dataclass(frozen=True)
+class StraightCase:
+    """A straight run: from rest at ``start_s`` to ``speed`` at once, crabbing ``crab_deg`` off its heading.
+
+    The body keeps its heading and moves along a line ``crab_deg`` to the left of it, so in the
+    trial frame X = -Y tan(crab) exactly: the 2 m mark after ``2 / (speed cos(crab))`` s and an MAE
+    over the stations Y = 0, 0.25, ..., 2 m of ``tan(crab) x mean(Y) = tan(crab) x 1.0 m``.
+    """
+
+    id: str
+    speed_mps: float
+    crab_deg: float
+    start_s: float = 1.37
+    occlusions: tuple[tuple[float, int], ...] = ()
+    start_pose: tuple[float, float, float] = (2.0, 1.5, 90.0)
+
+    @property
+    def true_time_s(self) -> float:
+        return 2.0 / (self.speed_mps * math.cos(math.radians(self.crab_deg)))
+
+    @property
+    def true_mae_m(self) -> float:
+        return math.tan(math.radians(abs(self.crab_deg))) * 1.0
+
+    def pose(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        x0, y0, h0 = self.start_pose
+        psi0 = math.radians(h0)
+        s = self.speed_mps * np.maximum(np.asarray(t, float) - self.start_s, 0.0)
+        d = psi0 + math.radians(self.crab_deg)
+        return x0 + s * math.cos(d), y0 + s * math.sin(d), np.full(np.shape(t), psi0)
+
+
+@dataclass(frozen=True)
 class Camera:
     """``project(points (N, 2) tank m) -> (N, 2) px``; ``kind`` "perspective" or "plain"."""
 
@@ -175,9 +207,9 @@ def render_turn(path: Path, case: TurnCase, cam: Camera, *, fps: float, head: st
         writer.release()
 
 
-def write_folder(root: Path, cases: list[TurnCase], cam: Camera, *, fps: float, head: str = "magenta",
+def write_folder(root: Path, cases: list, cam: Camera, *, fps: float, head: str = "magenta",
                  tail: str = "yellow", seed: int = 0) -> Path:
-    """A contract trials folder (trials.toml + videos/) with one turn trial per case."""
+    """A contract trials folder (trials.toml + videos/) with one trial per case (turn or straight)."""
     root.mkdir(parents=True, exist_ok=True)
     (root / "videos").mkdir(exist_ok=True)
     ref_px, ref_m = cam.references()
@@ -186,7 +218,8 @@ def write_folder(root: Path, cases: list[TurnCase], cam: Camera, *, fps: float, 
              "[robot]", f'head_marker = "{head}"', f'tail_marker = "{tail}"']
     for k, c in enumerate(cases):
         render_turn(root / "videos" / f"{c.id}.mp4", c, cam, fps=fps, head=head, tail=tail, seed=seed + k)
-        lines += ["", "[[trials]]", f'id = "{c.id}"', 'task = "turn"', 'model = "EF"', f"solution = {k + 1}",
+        task = "straight" if isinstance(c, StraightCase) else "turn"
+        lines += ["", "[[trials]]", f'id = "{c.id}"', f'task = "{task}"', 'model = "EF"', f"solution = {k + 1}",
                   f'video = "videos/{c.id}.mp4"', f"start_s = {c.start_s}"]
     (root / "trials.toml").write_text("\n".join(lines) + "\n", encoding="utf-8")
     return root

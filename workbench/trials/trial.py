@@ -16,7 +16,7 @@ import numpy as np
 
 from workbench.contract.trials import RobotSpec, TrialSpec, trial_where
 from workbench.errors import DataError, WorkbenchError
-from workbench.trials.clean import PoseSeries, clean_pose, start_heading
+from workbench.trials.clean import PoseSeries, clean_pose, start_heading, start_position_along
 from workbench.trials.geometry import TrialFrame, apply_homography, plane_homography, trial_frame
 from workbench.trials.params import ScoringParams
 from workbench.trials.scoring import (
@@ -227,6 +227,12 @@ def _evaluate(spec, robot, p, info, h, ts, heads, tails) -> tuple[TrialScore, Tr
     fitted = start_heading(pose, spec.start_s, p.start_heading_before_s, p.start_heading_after_s)
     if np.isfinite(fitted):
         psi0 = fitted
+    if not start_notes:
+        # a start at full speed: the smoothed track rounds the kink, take the forward position from a kinked fit
+        along = start_position_along(pose, spec.start_s, p.start_heading_before_s, p.start_heading_after_s, psi0)
+        if along is not None:
+            f = np.array([math.cos(psi0), math.sin(psi0)])
+            x0, y0 = np.array([x0, y0]) + (along - (x0 * f[0] + y0 * f[1])) * f
     frame = trial_frame((x0, y0), (math.cos(psi0), math.sin(psi0)))
     after = pose.t_s > spec.start_s
     t_rel = np.concatenate([[0.0], pose.t_s[after] - spec.start_s])
