@@ -13,7 +13,7 @@ import pytest
 from turn_videos import Camera, StraightCase, TurnCase, write_folder
 
 from workbench.trials import ScoringParams, score_folder
-from workbench.trials.clean import clean_pose, start_heading
+from workbench.trials.clean import clean_pose, start_heading, start_position_along
 
 
 def _pose(t, heading, x=None, y=None, spacing=0.24):
@@ -157,3 +157,31 @@ def test_straight_runs_from_an_independent_renderer(straight_runs):
         # the smoothed track used to put a full-speed start ~2.5 mm ahead: 0.025 s late at 0.1 m/s
         assert abs(r.score.time_s - c.true_time_s) <= 1 / 25 + 0.1, (c, r.score.time_s)
         assert abs(r.score.mae_x_m - c.true_mae_m) <= 0.02, (c, r.score.mae_x_m)
+
+
+def test_start_position_along_a_full_speed_start():
+    # at rest, then 0.1 m/s along the heading from start_s; 1 mm of noise per marker per frame
+    rng = np.random.default_rng(8)
+    fps, start, psi = 15.0, 2.04, 0.4
+    t = np.arange(0, 6, 1 / fps)
+    s = 0.1 * np.maximum(t - start, 0)
+    along, smoothed = [], []
+    for _ in range(30):
+        head, tail = _pose(t, np.full_like(t, psi), x=1.0 + s * np.cos(psi), y=2.0 + s * np.sin(psi))
+        head += 0.001 * rng.standard_normal(head.shape)
+        tail += 0.001 * rng.standard_normal(tail.shape)
+        pose = clean_pose(t, head, tail, np.eye(3), ScoringParams())
+        f0 = 1.0 * np.cos(psi) + 2.0 * np.sin(psi)
+        along.append(start_position_along(pose, start, 1.0, 2.0, psi) - f0)
+        x, y, _ = pose.at(start)
+        smoothed.append(x * np.cos(psi) + y * np.sin(psi) - f0)
+    assert abs(np.mean(along)) < 0.0005
+    # what the smoothed track alone gives (a start about 2.5 mm ahead)
+    assert np.mean(smoothed) > 0.0015
+
+
+def test_start_position_along_keeps_the_smoothed_track_without_a_kink():
+    t = np.arange(0, 6, 1 / 15)
+    head, tail = _pose(t, np.full_like(t, 0.4), x=0.02 * t, y=0.05 * t)   # steady drift, no start
+    pose = clean_pose(t, head, tail, np.eye(3), ScoringParams())
+    assert start_position_along(pose, 2.0, 1.0, 2.0, 0.4) is None
