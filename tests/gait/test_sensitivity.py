@@ -64,3 +64,31 @@ def test_factor_ranges_contain_the_nominal_robot():
         if hasattr(base, f.name):  # drag_linear_below_mps: its low end is the nominal law (tested above)
             assert f.low <= getattr(base, f.name) <= f.high, f.name
     assert np.all([f.low < f.high for f in FACTORS])
+
+
+def test_sensitivity_verb_writes_json_and_figure(tmp_path):
+    import json
+
+    from workbench.cli import main
+
+    gaits = {"task": "turn", "model": "ef", "settings": {"task": {"task": "turn", "cap_s": 2.0, "target_yaw_deg": 20.0}},
+             "solutions": [{"rank": k + 1, "params": p} for k, p in enumerate(GAITS.to_params())]}
+    path = tmp_path / "turn-ef.json"
+    path.write_text(json.dumps(gaits))
+    out = tmp_path / "sens"
+    assert main(["sensitivity", "--gaits", str(path), "--n", "2", "--out", str(out)]) == 0
+    doc = json.loads((out / "sensitivity.json").read_text())
+    assert doc["n_simulations"] == 2 * (len(FACTORS) + 2)
+    assert len(doc["gaits"]) == 3 and set(doc["indices"]) == {*doc["gaits"], "ranking_kendall_tau"}
+    assert (out / "sensitivity.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_sensitivity_verb_refuses_a_gaits_file_without_its_task(tmp_path, capsys):
+    import json
+
+    from workbench.cli import main
+
+    path = tmp_path / "g.json"
+    path.write_text(json.dumps({"solutions": [{"rank": 1, "params": GAITS.to_params()[0]}]}))
+    assert main(["sensitivity", "--gaits", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert "settings.task" in capsys.readouterr().err
