@@ -178,7 +178,7 @@ class WagnerLag(Effect):
     """
 
     name = "wagner_lag"
-    ranges = {"a_slow": (-0.2, 1.5), "a_fast": (-0.2, 1.5)}
+    ranges = {"a_slow": (0.0, 1.5), "a_fast": (0.0, 1.5)}
     formula = ("dF = sum_i a_i (L_i F_N - F_N), L_i first-order lags of tau_i c / max(|V_rel|, 0.05), "
                "tau = (10.99, 1.667) chords (Jones); F_N the normal-force law")
     #: Jones' time constants in chords: 1 / (2 * 0.0455) and 1 / (2 * 0.3)
@@ -201,11 +201,11 @@ class WagnerLag(Effect):
             f, m = kin.normal_law(self.quadrature)
             fm = np.stack([f, m], axis=-1)
             speed = np.maximum(kin.speed, self.floor)
-            cols = []
-            for tau in self.JONES_CHORDS:
-                lagged = first_order_lag(fm, speed / (tau * self.time_scale * self.chord_m), ctx.dt_s)
-                cols.append(kin.normal_law_wrench(lagged[..., 0] - f, lagged[..., 1] - m))
-            return np.stack(cols)
+            taus = np.array(self.JONES_CHORDS) * self.time_scale * self.chord_m
+            # both lags in one pass: input (B, T, 2 lags, force/couple), rates (B, T, 2 lags)
+            lagged = first_order_lag(np.repeat(fm[:, :, None, :], 2, axis=2), speed[..., None] / taus, ctx.dt_s)
+            return np.stack([kin.normal_law_wrench(lagged[:, :, i, 0] - f, lagged[:, :, i, 1] - m)
+                             for i in range(len(taus))])
 
         cols = kin._memo(("wagner", self.quadrature, self.chord_m, self.floor, self.time_scale), make)
         return Terms(["a_slow", "a_fast"], [cols[0], cols[1]], [ALL_CHANNELS, ALL_CHANNELS])

@@ -301,16 +301,20 @@ class LegKinematics:
 def first_order_lag(u: np.ndarray, rate_per_s: np.ndarray | float, dt_s: float) -> np.ndarray:
     """Integrate ``dx/dt = rate (u - x)`` along axis 1 of ``u`` (B, T, ...), from ``x = u[:, 0]``.
 
+    ``rate`` is (B, T) or (B, T, K, ...) for the leading axes of ``u`` (one rate per lag).
+
     Each step is exact for an input linear over the step at the step's mean rate (first-order
     hold): accurate at the 65 Hz ticks and stable for any ``rate * dt``; the rate may change
     every tick.
     """
     u = np.asarray(u, float)
-    rate = np.broadcast_to(np.asarray(rate_per_s, float), u.shape[:2])
-    r = 0.5 * (rate[:, 1:] + rate[:, :-1]) * dt_s                  # (B, T-1) rate * dt per step
+    rate = np.asarray(rate_per_s, float)
+    # the rate may carry trailing axes of u (several lags of one input in one pass)
+    rate = np.broadcast_to(rate, u.shape[:max(2, rate.ndim)])
+    r = 0.5 * (rate[:, 1:] + rate[:, :-1]) * dt_s                  # (B, T-1, ...) rate * dt per step
     e = np.exp(-r)
     g = np.where(r > 1e-9, -np.expm1(-r) / np.maximum(r, 1e-300), 1.0 - r / 2)  # (1 - e) / r
-    shape = r.shape + (1,) * (u.ndim - 2)
+    shape = r.shape + (1,) * (u.ndim - r.ndim)
     e, g = e.reshape(shape), g.reshape(shape)
     out = np.empty_like(u)
     out[:, 0] = u[:, 0]
