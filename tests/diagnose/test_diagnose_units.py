@@ -176,3 +176,29 @@ def test_a_frame_without_tunnel_columns_is_refused():
     frame = pl.DataFrame({"run_id": ["a"], "time_s": [0.0]})
     with pytest.raises(Exception, match="missing column"):
         prepare(frame, DataSettings())
+
+
+def test_block_sums_match_a_dense_product_channel_by_channel():
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(4)
+    b, t = 3, 40
+    cols = [rng.normal(size=(b, t, 6)) for _ in range(3)]
+    support = [np.ones(6, bool), np.array([0, 0, 1, 1, 1, 0], bool), np.array([1, 0, 0, 0, 0, 0], bool)]
+    local = [rng.normal(size=(b, t, 6))]
+    design = SimpleNamespace(names=["a", "b", "c"], cols=cols, support=support, base=rng.normal(size=(b, t, 6)),
+                             local=local, local_names=["l"])
+    rs = SimpleNamespace(shape=(b, t), y=rng.normal(size=(b, t, 6)), heldout=False)
+    ticks = np.array([[0, 1, 2, 3, -1], [45, 46, 47, 48, 49], [100, 101, -1, -1, -1]])
+    blocks = SimpleNamespace(ticks=ticks, run=np.array([0, 1, 2]), order=np.zeros(3, int))
+    gr = lsq.accumulate(design, rs, blocks, ["c", "a", "b"])
+    resid = (rs.y - design.base).reshape(b * t, 6)
+    for c in range(6):
+        names = [n for n in ["c", "a", "b"] if support[["a", "b", "c"].index(n)][c]]
+        assert [gr.names[i] for i in gr.chan_cols[c]] == names
+        for k, row in enumerate(ticks):
+            idx = row[row >= 0]
+            x = np.stack([cols[["a", "b", "c"].index(n)].reshape(b * t, 6)[idx, c] for n in names]
+                         + [local[0].reshape(b * t, 6)[idx, c]], axis=-1)
+            np.testing.assert_allclose(gr.G[c][k], x.T @ x, atol=1e-12)
+            np.testing.assert_allclose(gr.b[c][k], x.T @ resid[idx, c], atol=1e-12)
