@@ -120,11 +120,12 @@ class GaitProblem(Problem):
             self._flow_kernel = wrapped.flow_kernel  # probe the model once per problem
         return wrapped
 
-    def simulate(self, gaits: GaitBatch) -> Trajectory:
+    def simulate(self, gaits: GaitBatch, initial_flow: np.ndarray | None = None) -> Trajectory:
         """Swim the batch for the task's cap (one simulator call), counting the work."""
         t0 = time.perf_counter()
         model = self.model_for(gaits)
-        traj = simulate(gaits, model, self.robot, duration_s=self.spec.cap_s, **self.sim.kwargs())
+        traj = simulate(gaits, model, self.robot, duration_s=self.spec.cap_s, initial_flow=initial_flow,
+                        **self.sim.kwargs())
         self.log.gaits += len(gaits)
         self.log.calls += 1
         self.log.seconds += time.perf_counter() - t0
@@ -133,9 +134,9 @@ class GaitProblem(Problem):
             self.log.add_table(model.stats())
         return traj
 
-    def evaluate_gaits(self, gaits: GaitBatch) -> tuple[np.ndarray, Trajectory]:
-        """(B, 3) objectives and the trajectories of a gait batch."""
-        traj = self.simulate(gaits)
+    def evaluate_gaits(self, gaits: GaitBatch, initial_flow: np.ndarray | None = None) -> tuple[np.ndarray, Trajectory]:
+        """(B, 3) objectives and the trajectories of a gait batch (``initial_flow``: a first guess, see simulate)."""
+        traj = self.simulate(gaits, initial_flow)
         return objectives(traj, self.spec), traj
 
     def describe(self) -> dict:

@@ -461,9 +461,33 @@ class _Solve:
     def __init__(self, gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, t: np.ndarray, dt_s: float):
         self.b, self.n = len(gaits), t.size
         self.robot, self.dt_s = robot, dt_s
-        self.provider = leg_wrench_provider(leg_model, gaits.leg_motion(t))
+        self.motion = gaits.leg_motion(t)
+        self.provider = leg_wrench_provider(leg_model, self.motion)
         self.planar = _planar_coefficients(robot)
         self.calls = 0
+        self.model = leg_model
+        self.memory = _memory_ticks(leg_model, dt_s)
+
+    def window_wrench(self, flow: np.ndarray, lo: int, hi: int) -> np.ndarray:
+        """(B, 4, hi - lo, 6) wrenches of ticks lo .. hi - 1; the whole history unless the model's memory is known.
+
+        A window net (``seq_len`` ticks at the simulation's tick, no fast path of its own) sees the
+        current tick and the seq_len - 1 before it only, so it is run on ticks lo - memory .. hi
+        (from 0 when that reaches the start): the same numbers at a fraction of the cost.
+        """
+        if self.memory is None:
+            return self.wrench(flow)[:, :, lo:hi]
+        a = lo - self.memory if lo - self.memory > 0 else 0
+        e = min(self.n, hi + 1)
+        self.calls += 1
+        part = replace(self.motion, flow_speed_mps=flow.reshape(4 * self.b, self.n)[:, a:e],
+                       **{f: getattr(self.motion, f)[:, a:e] for f in _MOTION_SERIES
+                          if getattr(self.motion, f) is not None})
+        out = np.asarray(self.model.wrench(part), float)
+        if out.shape != (4 * self.b, e - a, 6) or not np.all(np.isfinite(out)):
+            raise ModelError(f"leg model {getattr(self.model, 'name', '?')!r} returned shape {out.shape} or "
+                             f"non-finite wrenches for ticks {a}..{e}")
+        return out.reshape(self.b, 4, e - a, 6)[:, :, lo - a:hi - a]
 
     def wrench(self, flow: np.ndarray) -> np.ndarray:
         """(B, 4, T, 6) load-cell wrenches of all legs for a (B, 4, T) flow history."""
@@ -472,11 +496,29 @@ class _Solve:
 
     def swim(self, w_leg: np.ndarray, lo: int = 0, hi: int | None = None,
              start: BodyState | None = None) -> tuple[dict, np.ndarray]:
-        """Integrate ticks lo .. hi - 1 (from ``start``, the state at tick lo; rest at 0); state and new flow."""
+        """Integrate ticks lo .. hi - 1 (from ``start``, the state at tick lo; rest at 0); state and new flow.
+
+        ``w_leg`` holds the wrenches of the whole horizon, or of ticks lo .. hi - 1 only.
+        """
         hi = self.n if hi is None else hi
-        legs = np.ascontiguousarray(np.moveaxis(_planar_sum(self.planar, w_leg[:, :, lo:hi]), 1, 0))
+        if w_leg.shape[2] != hi - lo:
+            w_leg = w_leg[:, :, lo:hi]
+        legs = np.ascontiguousarray(np.moveaxis(_planar_sum(self.planar, w_leg), 1, 0))
         state = integrate_stepwise(self.robot, lambda k, v: legs[k], hi - lo, self.b, self.dt_s, start=start)
         return state, leg_flow_speeds(self.robot, state["vx"], state["vy"], state["r"])
+
+
+_MOTION_SERIES = ("theta_h_deg", "theta_k_deg", "omega_h_dps", "omega_k_dps", "alpha_h_dps2", "alpha_k_dps2")
+
+
+def _memory_ticks(leg_model, dt_s: float) -> int | None:
+    """Ticks of flow history a window net looks back (``seq_len`` at this tick), None when unknown or a fast path."""
+    if callable(getattr(leg_model, "flow_provider", None)):
+        return None
+    seq, model_dt = getattr(leg_model, "seq_len", None), getattr(leg_model, "dt_s", None)
+    if not isinstance(seq, int) or not isinstance(model_dt, float) or abs(model_dt - dt_s) > 0.02 * dt_s:
+        return None
+    return seq  # seq_len - 1 ticks back, plus one of margin
 
 
 def _periodic_guess(flow: np.ndarray, lo: int, hi: int, period_ticks: np.ndarray) -> None:
@@ -504,7 +546,8 @@ def _periodic_guess(flow: np.ndarray, lo: int, hi: int, period_ticks: np.ndarray
 def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, duration_s: float = 20.0,
              dt_s: float = DEFAULT_DT_S, tol_mps: float = 1e-5, max_iter: int = 40, relaxation: float = 1.0,
              method: str = "windowed", window_s: float = 20.0, max_window_s: float = 60.0,
-             anderson: int = 5, on_iteration: Callable[[int, np.ndarray], None] | None = None) -> Trajectory:
+             anderson: int = 5, initial_flow: np.ndarray | None = None,
+             on_iteration: Callable[[int, np.ndarray], None] | None = None) -> Trajectory:
     """Simulate every gait of the batch from rest for ``duration_s``; returns the :class:`Trajectory`.
 
     The flow each leg sees depends on the motion the legs cause, and a leg model takes whole
@@ -526,6 +569,10 @@ def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, 
        leg's flow (the honest fixed-point residual) and ``converged`` says it is below
        ``tol_mps``. An unconverged gait is a flagged result, never a silent one.
 
+    ``initial_flow`` (B, 4, T), e.g. the flow of a cheaper model's swim of the same gaits, replaces
+    the still-water start and the periodic guesses (the direct check of tabulated gaits starts from
+    the tabulated flow and needs a few iterations instead of tens).
+
     The schedule depends on the settings and the gait only, so a gait's result does not depend on
     the rest of the batch; everything is deterministic. ``method="picard"`` is the earlier
     whole-horizon relaxed iteration (``max_iter`` in all), which leaves gaits unconverged at 60 s
@@ -545,6 +592,13 @@ def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, 
     t = np.arange(n_ticks) * dt_s
     solve = _Solve(gaits, leg_model, robot, t, dt_s)
     flow = np.zeros((b, 4, n_ticks))
+    guessed = initial_flow is not None
+    if guessed:
+        initial_flow = np.asarray(initial_flow, float)
+        if initial_flow.shape != flow.shape or not np.all(np.isfinite(initial_flow)):
+            raise ValueError(f"initial_flow must be finite with shape {flow.shape}, got {initial_flow.shape}")
+        flow[:] = initial_flow
+        flow[:, :, 0] = 0.0                            # the swim starts at rest
     failed = np.zeros(b, bool)
     if method == "picard":
         w_leg, state, residual, k = _picard(solve, flow, tol_mps, max_iter, relaxation, on_iteration)
@@ -554,11 +608,12 @@ def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, 
         todo = np.ones(b, bool)
         attempt = 0
         while True:
-            trial = np.where(todo[:, None, None], 0.0, flow)
+            trial = flow.copy() if attempt == 0 else np.where(todo[:, None, None], 0.0, flow)
             gave_up = ~todo
             scale = 4.0 ** attempt
             _windowed(solve, trial, gaits, tol_mps, max_iter, relaxation, window_s / scale,
-                      max(max_window_s / scale, window_s / scale), gave_up, on_iteration, anderson)
+                      max(max_window_s / scale, window_s / scale), gave_up, on_iteration, anderson,
+                      guessed=guessed and attempt == 0)
             flow[todo] = trial[todo]
             todo &= gave_up
             attempt += 1
@@ -665,11 +720,12 @@ class _Anderson:
 
 
 def _windowed(solve: _Solve, flow, gaits: GaitBatch, tol_mps, max_iter, relaxation, window_s, max_window_s,
-              failed, on_iteration, anderson: int = 0) -> None:
+              failed, on_iteration, anderson: int = 0, guessed: bool = False) -> None:
     """Waveform relaxation on growing windows (see :func:`simulate`); updates ``flow`` and ``failed`` in place."""
     b, n_ticks, dt = solve.b, solve.n, solve.dt_s
     period = 1.0 / (gaits.frequency_hz * dt)           # ticks per gait cycle (not an integer)
-    start, filled = None, 1                             # the state at the window's first tick; ticks guessed so far
+    start = None                                        # the state at the window's first tick
+    filled = n_ticks if guessed else 1                  # ticks with a first guess so far
     windows = window_schedule(n_ticks, dt, window_s, max_window_s)
     for j, (lo, hi) in enumerate(windows):
         guess_to = min(n_ticks, hi + OVERLAP_TICKS)
@@ -682,8 +738,7 @@ def _windowed(solve: _Solve, flow, gaits: GaitBatch, tol_mps, max_iter, relaxati
         state = None
         acc = _Anderson(b, anderson) if anderson else None
         for _ in range(max_iter):
-            w_leg = solve.wrench(flow)
-            state, new = solve.swim(w_leg, lo, hi, start)
+            state, new = solve.swim(solve.window_wrench(flow, lo, hi), lo, hi, start)
             x = flow[:, :, lo:hi]
             change = np.abs(new - x).max(axis=(1, 2))
             # a diverging gait (non-finite, or flows no swimmer sees) is given up before it poisons the batch
