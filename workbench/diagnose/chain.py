@@ -115,9 +115,69 @@ def _key(actives: list[Active]) -> tuple:
 _KEEP_INPUTS = 3
 
 
+#: input effects a surrogate search may stand in for (and the parameter each has)
+_SURROGATE_INPUTS = {"servo_lag": "tau_s", "tunnel_blockage": "epsilon"}
+
+
+class SurrogateContext(Context):
+    """A context whose model output comes from the plain motion's, for searches with an expensive model.
+
+    * servo lag tau: the plain output through the lag. ``M(lag(x)) = M(x) - tau dM/dt + O(tau^2)``
+      and so is ``lag(M(x))``: the two agree to first order in the lag for any causal
+      time-invariant model;
+    * tunnel blockage epsilon: the output at flow factor ``f = sqrt(1 + epsilon)`` by the
+      quadratic through the plain output at factors 1 - h, 1 and 1 + h (h = 0.05; exact for a
+      force quadratic in the flow, and those two runs are the flow sensitivity's anyway).
+
+    An expensive model (a windowed LSTM: 32 steps per tick) then runs a few times for a whole
+    search. The force terms still see the transformed kinematics; the final refinement and
+    every held-out judgement use the model itself.
+    """
+
+    H = 0.05
+
+    def __init__(self, rs, model, motion, geometry, plain: Context, inputs: list):
+        super().__init__(rs, model, motion, geometry)
+        self._plain = plain
+        self._taus = [a.nl["tau_s"] for a in inputs if a.name == "servo_lag"]
+        eps = [a.nl["epsilon"] for a in inputs if a.name == "tunnel_blockage"]
+        self._factor = float(np.sqrt(max(1.0 + eps[0], 1e-6))) if eps else 1.0
+
+    def _lag(self, w: np.ndarray) -> np.ndarray:
+        from workbench.diagnose.effects_rig import lag_filter
+
+        for tau in self._taus:
+            w = lag_filter(w, tau, self.dt_s, axis=-2)
+        return w
+
+    def _at(self, factor: float) -> np.ndarray:
+        w1 = self._plain.base
+        if abs(factor - 1.0) < 1e-12:
+            return w1
+        h = self.H
+        wp, wm = self._plain.wrench_at_flow(1 + h), self._plain.wrench_at_flow(1 - h)
+        d = factor - 1.0
+        return w1 + d * (wp - wm) / (2 * h) + d * d * (wp - 2 * w1 + wm) / (2 * h * h)
+
+    @property
+    def base(self) -> np.ndarray:  # type: ignore[override]
+        """The plain output, at the blocked flow, through the lags (computed once per context)."""
+        if "_surrogate_base" not in self.__dict__:
+            self.__dict__["_surrogate_base"] = self._lag(self._at(self._factor))
+        return self.__dict__["_surrogate_base"]
+
+    def wrench_at_flow(self, factor: float) -> np.ndarray:
+        """The surrogate output at a further flow factor (cached)."""
+        if factor == 1.0:
+            return self.base
+        if factor not in self._flow_cache:
+            self._flow_cache[factor] = self._lag(self._at(self._factor * factor))
+        return self._flow_cache[factor]
+
+
 def build_design(model, rs, config: Configuration, coefs: dict[str, float] | None = None,
                  lowpass: Lowpass | None = None, geometry=DEFAULT_GEOMETRY,
-                 only: set[str] | None = None, cache: dict | None = None) -> Design:
+                 only: set[str] | None = None, cache: dict | None = None, surrogate: bool = False) -> Design:
     """Evaluate ``config`` on the batch ``rs`` as base + linear columns.
 
     ``coefs`` (qualified names ``effect.param``) are the current values of the force-stage
@@ -125,12 +185,18 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
     ``only`` restricts the linear columns kept (others are dropped, not folded in). ``cache``
     (a dict owned by the caller, one per batch) keeps the model and force-stage results of the
     last configurations, so a search over a filter or a sensor parameter does not redo them.
+    ``surrogate``: servo lags and blockage act on the model's output instead of its input
+    (:class:`SurrogateContext`), for searches with an expensive model.
     The ingest's low-pass is applied after the force stage; the filter stage and the sensor
     stage are linear and time-invariant per channel, so the order does not change the result.
     """
     coefs = coefs or {}
     cache = {} if cache is None else cache
-    in_key = _key(config.stage("input"))
+    inputs = config.stage("input")
+    surrogate = (surrogate and bool(inputs) and all(set(a.nl) == {_SURROGATE_INPUTS.get(a.name)} for a in inputs))
+    in_key = _key(inputs)
+    if surrogate:
+        in_key = (("~lagged-output",),) + in_key
     ctx = cache.get(("ctx", in_key))
     recent = cache.setdefault(("recent",), [])
     if in_key in recent:
@@ -139,15 +205,29 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
     if ctx is None:
         # keep the model's output for the last few input configurations: a search over a servo lag
         # visits new ones, and the step's other candidates come back to the current one (an
-        # expensive model, such as a windowed LSTM, is then not run again)
+        # expensive model, such as a windowed LSTM, is then not run again); the plain motion's
+        # output stays (lagged-output surrogates are made from it), surrogates go first
+        plain_key = _key([])
         while len(recent) > _KEEP_INPUTS:
-            old = recent.pop(0)
+            spare = [k for k in recent[:-1] if k != plain_key]
+            if not spare:
+                break
+            old = next((k for k in spare if k and k[0] == ("~lagged-output",)), spare[0])
+            recent.remove(old)
             for k in [k for k in cache if k[0] in ("ctx", "term", "base", "offset") and k[1] == old]:
                 del cache[k]
         motion = rs.motion
-        for a in config.stage("input"):
+        for a in inputs:
             motion = a.effect.transform_motion(motion, a.nl)
-        ctx = Context(rs, model, motion, geometry)
+        if surrogate:
+            plain = cache.get(("ctx", plain_key))
+            if plain is None:
+                plain = Context(rs, model, rs.motion, geometry)
+                cache[("ctx", plain_key)] = plain
+                recent.insert(0, plain_key)
+            ctx = SurrogateContext(rs, model, motion, geometry, plain, inputs)
+        else:
+            ctx = Context(rs, model, motion, geometry)
         cache[("ctx", in_key)] = ctx
 
     def lp(x: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from workbench.diagnose import lsq
 from workbench.diagnose.chain import Configuration, Lowpass, build_design
 from workbench.diagnose.data import Campaign, RunSet, make_blocks, make_runset
 from workbench.hydro.kinematics import DEFAULT_GEOMETRY
+from workbench.hydro.motion import LegMotion
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,11 @@ class FitSettings:
     hac_lags: int = 2
     #: fixed-point passes when crosstalk reads coefficients of the force terms
     passes: int = 3
+    #: searches over a servo lag lag the model's output instead of its input (first-order exact;
+    #: the final refinement uses the model itself): "auto" when the model costs more than
+    #: ``expensive_us_per_tick`` (a windowed LSTM), or true / false
+    surrogate_search: str | bool = "auto"
+    expensive_us_per_tick: float = 40.0
 
 
 class Problem:
@@ -50,7 +56,19 @@ class Problem:
         # the model's output, kinematics and the last force-stage stack per batch (a search over a
         # filter, sensor or per-run parameter, and the fixed-point passes, reuse them)
         self._caches: dict[int, dict] = {id(rs): {} for rs in [*self.search_sets, *campaign.sets]}
+        import time
+
+        t0 = time.perf_counter()
+        m = campaign.train_sets[0].motion
+        probe = LegMotion(m.dt_s, *(x[:2] for x in (m.theta_h_deg, m.theta_k_deg, m.omega_h_dps, m.omega_k_dps,
+                                                     m.flow_speed_mps, m.alpha_h_dps2, m.alpha_k_dps2)))
+        self.model.wrench(probe)
+        #: the model's cost (microseconds per tick) and the search mode it implies
+        self.model_us_per_tick = 1e6 * (time.perf_counter() - t0) / max(probe.theta_h_deg.size, 1)
         base = self.fit(Configuration(), sets="train")
+        mode = self.settings.surrogate_search
+        self.surrogate_search = (self.model_us_per_tick > self.settings.expensive_us_per_tick
+                                 if mode == "auto" else bool(mode))
         sse_c = base.sse_block_c.sum(axis=0)
         n = base_n = self._ticks(sets="train")
         var = sse_c / max(n, 1)
@@ -84,18 +102,33 @@ class Problem:
     def _ticks(self, sets: str) -> int:
         return int(sum((b.ticks >= 0).sum() for _, b in self.sets(sets)))
 
+    def context(self, rs: RunSet, config: Configuration):
+        """The batch's cached effect context under ``config``'s input effects (None when not cacheable)."""
+        from workbench.diagnose.chain import _key
+
+        cache = self._caches.get(id(rs))
+        if cache is None:
+            return None
+        key = ("ctx", _key(config.stage("input")))
+        if key not in cache:
+            self.design(rs, Configuration(list(config.stage("input"))), {}, names=[])
+        return cache.get(key)
+
     # ------------------------------------------------------------------- fits
-    def design(self, rs: RunSet, config: Configuration, coefs: dict | None = None, names=None):
-        """The configuration on one batch."""
+    def design(self, rs: RunSet, config: Configuration, coefs: dict | None = None, names=None,
+               surrogate: bool = False):
+        """The configuration on one batch (``surrogate``: servo lags on the model's output, for searches)."""
         return build_design(self.model, rs, config, coefs, self.lowpass, self.geometry,
-                            only=None if names is None else set(names), cache=self._caches.get(id(rs)))
+                            only=None if names is None else set(names), cache=self._caches.get(id(rs)),
+                            surrogate=surrogate)
 
     def grams(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
               sets: str = "all") -> lsq.Grams:
         """Block sums of ``config`` (columns restricted to ``names`` when given)."""
         parts = []
+        surrogate = sets == "search" and getattr(self, "surrogate_search", False)
         for rs, blocks in self.sets(sets):
-            d = self.design(rs, config, coefs, names)
+            d = self.design(rs, config, coefs, names, surrogate=surrogate)
             parts.append(lsq.accumulate(d, rs, blocks, names if names is not None else d.names))
         return lsq.concat(parts)
 
@@ -157,10 +190,14 @@ def flow_gains(problem: Problem, config: Configuration) -> list[np.ndarray]:
     fu = FlowUnsteadiness()
     out = {}
     for rs in problem.campaign.sets:
-        motion = rs.motion
-        for a in config.stage("input"):
-            motion = a.effect.transform_motion(motion, a.nl)
-        g = fu.gain(Context(rs, problem.model, motion, problem.geometry))
+        ctx = problem.context(rs, config)
+        if ctx is None:
+            motion = rs.motion
+            for a in config.stage("input"):
+                motion = a.effect.transform_motion(motion, a.nl)
+            ctx = Context(rs, problem.model, motion, problem.geometry)
+        # the model at the scaled flows is cached with the batch's context (an LSTM runs once per input)
+        g = fu.gain(ctx)
         if problem.lowpass is not None:
             g = problem.lowpass(g, rs.dt_s, axis=-2)
         for i in range(rs.shape[0]):

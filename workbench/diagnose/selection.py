@@ -476,16 +476,67 @@ class StepwiseSelection:
         return Candidate(cand.effect, cand.active, cand.config, names, f, cand.test, cand.gain_c, cand.profile,
                          cand.ok, cand.note, cand.partner)
 
+    def _parabola(self, problem, config, coefs, names, effect, start: dict) -> dict:
+        """One searched parameter finished by a parabola through three values around ``start``.
+
+        Log-scaled parameters (a lag) at start x exp(-0.12, 0, 0.12); others at start -+ 0.03.
+        """
+        p = effect.search[0]
+        extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
+
+        def objective(v: float) -> float:
+            cfg = config.with_effect(Active(effect, {p.name: v}))
+            gr = problem.grams(cfg, coefs, names + extra, sets="search")
+            return float(lsq.fit(gr, problem.weights, problem.settings.hac_lags).sse_block.sum())
+
+        v0 = float(start[p.name])
+        if p.log and v0 <= 0:
+            return start
+        width = 0.12 if p.log else 0.03
+        x0 = np.log(v0) if p.log else v0
+        xs = x0 + np.array([-width, 0.0, width])
+
+        def value(x: float) -> float:
+            return float(np.clip(np.exp(x) if p.log else x, *p.bounds))
+
+        ys = np.array([objective(value(x)) for x in xs])
+        best = value(xs[int(np.argmin(ys))])
+        vx = _parabola_min(xs, ys)
+        if vx is not None and abs(vx - x0) <= 2 * width:
+            v = value(vx)
+            if objective(v) < ys.min():
+                best = v
+        return {p.name: best}
+
     def _refine(self, problem, config, coefs, names, current):
-        """Re-search each nonlinear parameter with the others at their final values (one round)."""
-        for a in list(config.actives):
-            if not a.effect.search:
-                continue
-            rest = config.without(a.name)
-            nl, _ = self.search(problem, rest, coefs, names, a.effect, start=dict(a.nl))
-            config = rest.with_effect(Active(a.effect, nl))
+        """Re-search each nonlinear parameter with the others at their final values (one round).
+
+        Always with the model itself (no lagged-output surrogate): these are the reported values.
+        """
+        surrogate = getattr(problem, "surrogate_search", False)
+        problem.surrogate_search = False
+        try:
+            for a in list(config.actives):
+                if not a.effect.search:
+                    continue
+                rest = config.without(a.name)
+                if surrogate and a.effect.stage == "input" and len(a.effect.search) == 1:
+                    # the surrogate's optimum is right to first order: a parabola through three
+                    # evaluations of the model itself finishes it (each costs a full model run)
+                    nl = self._parabola(problem, rest, coefs, names, a.effect, dict(a.nl))
+                else:
+                    nl, _ = self.search(problem, rest, coefs, names, a.effect, start=dict(a.nl))
+                config = rest.with_effect(Active(a.effect, nl))
+        finally:
+            problem.surrogate_search = surrogate
         current = problem.fit(config, coefs, names)
         return config, current
+
+
+def _parabola_min(x: np.ndarray, y: np.ndarray) -> float | None:
+    """Vertex of the parabola through three points (None when it opens downwards)."""
+    a, b, _ = np.polyfit(x, y, 2)
+    return float(-b / (2 * a)) if a > 0 else None
 
 
 def _implausible(c: Candidate) -> str | None:

@@ -1,0 +1,67 @@
+"""Issue 13's planted-effect battery: the confusion table (planted against named), parameter errors, error removed.
+
+Plants rig effects into copies of a rich-truth virtual tunnel campaign by editing its raw CSV
+files with formulas of the tests' own (``tests/diagnose/planting.py``), ingests each copy and
+diagnoses it; scores with ``tests/diagnose/battery.py``.
+
+    .venv/bin/python benchmarks/diagnose_battery.py                        # EF, with and without --reference
+    .venv/bin/python benchmarks/diagnose_battery.py --model lstm --mode ref # the trained FED-LSTM as base
+    .venv/bin/python benchmarks/diagnose_battery.py --cases servo_dead_60ms,vibration_3.3Hz --sets 8
+
+Campaigns are cached under build/bench/diagnose (gitignored). Not part of ``make bench`` (about a
+minute per case and base on an idle two-core machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests" / "diagnose"))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", default="ef", help="base model(s), comma-separated: ef, lstm, ... (default ef)")
+    ap.add_argument("--mode", default="both", choices=["ref", "noref", "both"],
+                    help="with --reference (a clean campaign of the same rig), without, or both")
+    ap.add_argument("--cases", help="comma-separated case names (default: all)")
+    ap.add_argument("--sets", type=int, default=12, help="parameter sets per campaign (x3 flow speeds)")
+    ap.add_argument("--root", default=str(ROOT / "build" / "bench" / "diagnose"))
+    ap.add_argument("--json", metavar="FILE", help="also write every result as JSON")
+    args = ap.parse_args()
+
+    import battery as B
+
+    root = Path(args.root)
+    root.mkdir(parents=True, exist_ok=True)
+    bench = B.Bench(root, n_sets=args.sets)
+    modes = {"ref": [True], "noref": [False], "both": [True, False]}[args.mode]
+    out = {}
+    for model in args.model.split(","):
+        for with_ref in modes:
+            cases = B.all_cases(with_ref)
+            if args.cases:
+                want = set(args.cases.split(","))
+                cases = [c for c in B.all_cases(False) if c.name in want]
+            clean = bench.clean(model, with_ref)
+            print(f"clean campaign, {model} {'with' if with_ref else 'without'} reference: claims "
+                  f"{[e.name for e in clean.effects] or 'nothing'}", flush=True)
+            results = []
+            for c in cases:
+                r = bench.run(c, model, with_ref)
+                print(f"  {c.name}: named {r['named']}, extra {r['extra']}, params {r['params']}", flush=True)
+                results.append(r)
+            title = f"{model}, {'with --reference' if with_ref else 'no reference'}"
+            print(B.table(results, title), flush=True)
+            out[title] = {"clean_claims": [e.name for e in clean.effects], "results": results}
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
