@@ -72,6 +72,7 @@ def test_a_pruned_trial_ends_its_run_killed(config, project, parquet):
     doc = yaml.safe_load(config.read_text())["tune"]
     tune = dataclasses.replace(TuneCfg.from_dict(doc), study="pruned", pruner={"type": "threshold", "upper": 1e-9})
     storage = str(project / ".optuna" / "pruned.journal")
+    (project / ".optuna").mkdir(exist_ok=True)  # the verb makes it; this test opens the journal itself
     optuna.create_study(study_name="pruned", storage=optuna.storages.JournalStorage(
         optuna.storages.journal.JournalFileBackend(storage)))
     run_worker({"config": base.to_dict(), "tune": dataclasses.asdict(tune), "storage": storage, "study": "pruned",
