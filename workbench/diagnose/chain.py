@@ -115,6 +115,19 @@ def _key(actives: list[Active]) -> tuple:
 _KEEP_INPUTS = 3
 
 
+def _add_flow_offset(ctx: Context, flow_offset: np.ndarray | None) -> None:
+    """Make ``ctx.wrench_at_flow`` carry the offset's flow sensitivity (``--reference``): + (f - 1) U dW/dU."""
+    if flow_offset is None or isinstance(ctx, SurrogateContext):
+        return
+    plain_at = ctx.wrench_at_flow
+
+    def at(factor: float) -> np.ndarray:
+        w = plain_at(factor)
+        return w if factor == 1.0 else w + (factor - 1.0) * flow_offset
+
+    ctx.wrench_at_flow = at  # type: ignore[method-assign]
+
+
 #: input effects a surrogate search may stand in for (and the parameter each has)
 _SURROGATE_INPUTS = {"servo_lag": "tau_s", "tunnel_blockage": "epsilon"}
 
@@ -223,11 +236,13 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
             plain = cache.get(("ctx", plain_key))
             if plain is None:
                 plain = Context(rs, model, rs.motion, geometry)
+                _add_flow_offset(plain, getattr(rs, "flow_offset", None))
                 cache[("ctx", plain_key)] = plain
                 recent.insert(0, plain_key)
             ctx = SurrogateContext(rs, model, motion, geometry, plain, inputs)
         else:
             ctx = Context(rs, model, motion, geometry)
+        _add_flow_offset(ctx, getattr(rs, "flow_offset", None))
         cache[("ctx", in_key)] = ctx
 
     def lp(x: np.ndarray) -> np.ndarray:

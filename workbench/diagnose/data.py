@@ -59,6 +59,8 @@ class RunSet:
     heldout: bool
     #: (B, T, 6) known addition to the model's (low-passed) prediction, e.g. a reference misfit; None: none
     offset: np.ndarray | None = None
+    #: (B, T, 6) its flow sensitivity U d(offset)/dU; None: none
+    flow_offset: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -80,6 +82,7 @@ class Campaign:
     skipped: list[str] = field(default_factory=list)
     #: run index -> (T, 6) known addition to the model's prediction (``--reference``)
     offsets: dict[int, np.ndarray] | None = None
+    flow_offsets: dict[int, np.ndarray] | None = None
 
     @property
     def sets(self) -> list[RunSet]:
@@ -152,7 +155,8 @@ def derivative4(x: np.ndarray, dt: float) -> np.ndarray:
 
 
 def make_runset(runs: list[RunMotion], index: list[int], dt: float, settings: DataSettings, heldout: bool,
-                offsets: dict[int, np.ndarray] | None = None) -> RunSet:
+                offsets: dict[int, np.ndarray] | None = None,
+                flow_offsets: dict[int, np.ndarray] | None = None) -> RunSet:
     """Pad ``runs`` to a common length and mark their analysis and rest ticks (``offsets`` by run index)."""
     n = max(len(r.time_s) for r in runs)
     b = len(runs)
@@ -182,16 +186,21 @@ def make_runset(runs: list[RunMotion], index: list[int], dt: float, settings: Da
     motion = LegMotion.from_arrays(dt, arrays["th"], arrays["tk"], arrays["wh"], arrays["wk"], arrays["u"],
                                    derivative4(arrays["wh"], dt), derivative4(arrays["wk"], dt))
     freq = np.array([float(r.params.get("frequency_hz", np.nan)) for r in runs])
-    off = None
-    if offsets:
-        off = np.zeros((b, n, 6))
+    def table(src):
+        if not src:
+            return None
+        out = np.zeros((b, n, 6))
         for i, j in enumerate(index):
-            if int(j) in offsets:
-                off[i] = _pad(offsets[int(j)], n)
+            if int(j) in src:
+                out[i] = _pad(src[int(j)], n)
+        return out
+
+    off, flow_off = table(offsets), table(flow_offsets)
     return RunSet(run_ids=tuple(r.run_id for r in runs), index=np.asarray(index), dt_s=dt, time_s=time,
                   motion=motion, y=y, valid=valid, fit=fit, rest=rest,
                   flow=np.array([r.flow_speed_mps for r in runs]), freq=freq,
-                  params=[dict(r.params) for r in runs], heldout=heldout, offset=off)
+                  params=[dict(r.params) for r in runs], heldout=heldout, offset=off,
+                  flow_offset=flow_off)
 
 
 def _chunks(idx: list[int], runs: list[RunMotion], size: int) -> list[list[int]]:

@@ -88,7 +88,7 @@ class Problem:
         train = sorted(train, key=lambda i: len(runs[i].time_s))
         size = max(1, ds.chunk_runs)
         return [make_runset([runs[i] for i in train[j:j + size]], train[j:j + size], self.campaign.dt_s, ds, False,
-                            self.campaign.offsets)
+                            self.campaign.offsets, self.campaign.flow_offsets)
                 for j in range(0, len(train), size)]
 
     def sets(self, which: str) -> list[tuple[RunSet, object]]:

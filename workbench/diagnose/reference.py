@@ -11,7 +11,10 @@ That waveform is indexed by the run's motion parameters and flow speed.
 The base model is then corrected run by run: the waveform of the reference run with the same
 motion parameters and flow speed (or, failing that, the nearest one in normalised parameter
 space, counted) is added to the model's low-passed prediction over the moving part of each run,
-before the filter and sensor stages (a mount mode or crosstalk acts on it as on the true wrench). The
+before the filter and sensor stages (a mount mode or crosstalk acts on it as on the true wrench).
+Its flow sensitivity ``U dW/dU`` (a quadratic in U through the reference waveforms of the same
+parameters at every speed) joins the model's wherever the model is asked for its output at
+another flow (a flow tone's regressor, the demodulated tone scan). The
 diagnosis that follows sees only what differs from the reference: a new servo, load cell, mount
 or pump, a drift; the base model's own misfit (which repeats every stroke in both campaigns)
 is gone. Rig noise, per-run biases and drifts are not stroke-locked and are not learned.
@@ -72,6 +75,32 @@ class ReferenceCorrection:
         f = freq if np.isfinite(freq) and freq > 0 else self.freq[i]
         return _basis(time_s, f, k, self.envelope_degree, self.spans[i]) @ c, exact
 
+    def flow_sensitivity(self, params: dict, flow: float, freq: float, time_s: np.ndarray) -> np.ndarray | None:
+        """``U d(waveform)/dU`` at this run's flow, from the reference runs of its parameters at other speeds.
+
+        A quadratic in U through the waveforms of every speed (a line through two); None when
+        the reference has the parameters at one speed only, or the run is at zero flow.
+        """
+        if flow <= 0:
+            return None
+        pk = _key(params, flow).split("|")[0]
+        idx = [i for i, k in enumerate(self.keys) if k.split("|")[0] == pk]
+        if len(idx) < 2:
+            return None
+        us = np.array([float(self.keys[i].split("|U=")[1]) for i in idx])
+        ws = []
+        for i in idx:
+            c = self.coefs[i]
+            k = (c.shape[0] // (self.envelope_degree + 1) - 1) // 2
+            f = freq if np.isfinite(freq) and freq > 0 else self.freq[i]
+            ws.append(_basis(time_s, f, k, self.envelope_degree, self.spans[i]) @ c)
+        w = np.stack(ws)                                   # (n_speeds, T, 6)
+        deg = 2 if len(set(us.round(6))) >= 3 else 1
+        v = np.vander(us, deg + 1)
+        coef = np.linalg.lstsq(v, w.reshape(len(us), -1), rcond=None)[0].reshape(deg + 1, *w.shape[1:])
+        d = 2 * coef[0] * flow + coef[1] if deg == 2 else coef[0]
+        return flow * d
+
     def apply(self, campaign: Campaign) -> Campaign:
         """The campaign with each run's reference waveform as a known part of the prediction.
 
@@ -82,26 +111,35 @@ class ReferenceCorrection:
 
         self.matched = self.nearest = 0
         offsets: dict[int, np.ndarray] = {}
+        flows: dict[int, np.ndarray] = {}
         for i, r in enumerate(campaign.runs):
             moving = r.time_s >= 0
-            w, exact = self.waveform(dict(r.params), float(r.flow_speed_mps),
-                                     float(r.params.get("frequency_hz", np.nan)), r.time_s[moving])
+            freq = float(r.params.get("frequency_hz", np.nan))
+            w, exact = self.waveform(dict(r.params), float(r.flow_speed_mps), freq, r.time_s[moving])
             off = np.zeros((len(r.time_s), 6))
             off[moving] = w
             offsets[i] = off
+            g = self.flow_sensitivity(dict(r.params), float(r.flow_speed_mps), freq, r.time_s[moving])
+            dg = np.zeros((len(r.time_s), 6))
+            if g is not None:
+                dg[moving] = g
+            flows[i] = dg
             self.matched += int(exact)
             self.nearest += int(not exact)
-        sets = []
-        for rs in campaign.train_sets + campaign.heldout_sets:
+        def padded(rs, table):
             b, n = rs.shape
-            off = np.zeros((b, n, 6))
+            out = np.zeros((b, n, 6))
             for k in range(b):
-                o = offsets[int(rs.index[k])]
-                off[k, :len(o)] = o
-                off[k, len(o):] = o[-1]
-            sets.append(dataclasses.replace(rs, offset=off))
+                o = table[int(rs.index[k])]
+                out[k, :len(o)] = o
+                out[k, len(o):] = o[-1]
+            return out
+
+        sets = [dataclasses.replace(rs, offset=padded(rs, offsets), flow_offset=padded(rs, flows))
+                for rs in campaign.train_sets + campaign.heldout_sets]
         nt = len(campaign.train_sets)
-        return dataclasses.replace(campaign, train_sets=sets[:nt], heldout_sets=sets[nt:], offsets=offsets)
+        return dataclasses.replace(campaign, train_sets=sets[:nt], heldout_sets=sets[nt:], offsets=offsets,
+                                   flow_offsets=flows)
 
 
 def _key(params: dict, flow: float) -> str:
