@@ -71,8 +71,9 @@ def accumulate(design, rs, blocks, shared_names: list[str] | None = None) -> Gra
     # six times as much), as (nb, L, 6, k)
     used = [i for i, n in enumerate(names) if n in pos]
     if used:
-        flat = np.stack([design.cols[pos[names[i]]].reshape(b_ * t_, 6) for i in used], axis=-1)
-        gathered = flat[idx] * wmask[..., None]
+        # gather the analysis ticks first (a strided subset), then stack the smaller arrays
+        gathered = np.stack([design.cols[pos[names[i]]].reshape(b_ * t_, 6)[idx] for i in used], axis=-1)
+        gathered *= wmask[..., None]
     col_of = {i: j for j, i in enumerate(used)}
     chan_cols, G, bvec = [], [], []
     for c in range(6):
