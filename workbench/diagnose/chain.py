@@ -112,7 +112,7 @@ def _key(actives: list[Active]) -> tuple:
 
 
 #: input configurations (servo lags) whose model output, kinematics and force terms stay cached per batch
-_KEEP_INPUTS = 3
+_KEEP_INPUTS = 5
 
 
 def _add_flow_offset(ctx: Context, flow_offset: np.ndarray | None) -> None:

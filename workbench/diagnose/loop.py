@@ -313,6 +313,26 @@ def one_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
+def _chunks_for(model, data: DataSettings) -> DataSettings:
+    """Smaller batches for an expensive model: every padded tick costs a model run (a 32-step LSTM)."""
+    import dataclasses
+
+    from workbench.hydro.motion import LegMotion
+
+    n = 256
+    z = np.zeros((2, n))
+    probe = LegMotion(1 / 65, z - 40.0, z + 40.0, z, z, z + 0.1, z, z)
+    t0 = time.perf_counter()
+    try:
+        model.wrench(probe)
+    except Exception:  # noqa: BLE001 - a model that cannot run a probe is diagnosed as configured
+        return data
+    us = 1e6 * (time.perf_counter() - t0) / (2 * n)
+    if us > FitSettings().expensive_us_per_tick and data.chunk_runs > 12:
+        return dataclasses.replace(data, chunk_runs=12)
+    return data
+
+
 def diagnose(frame, model, model_spec: str = "model", settings: DiagnoseSettings | None = None,
              library: EffectLibrary | None = None, selection: StepwiseSelection | None = None,
              lowpass: Lowpass | None = None, progress: Callable[[str], None] | None = None,
@@ -333,7 +353,7 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
     t_start = time.perf_counter()
     s = settings or DiagnoseSettings()
     say = progress or (lambda msg: None)
-    campaign = prepare(frame, s.data, source)
+    campaign = prepare(frame, _chunks_for(model, s.data), source)
     if lowpass is None and s.match_lowpass:
         lowpass = Lowpass(s.lowpass_cutoff_hz or 6.0, s.lowpass_order or 4)
     cutoff = lowpass.cutoff_hz if lowpass else s.evidence.fmax_hz

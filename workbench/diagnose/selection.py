@@ -267,6 +267,10 @@ class StepwiseSelection:
             grids = {"tone_hz": tuple(np.round(np.linspace(f0 - hw, f0 + hw, 9), 4))}
             start = None
         nl, profile = self.search(problem, config, coefs, names, effect, grids, start=start)
+        if getattr(problem, "surrogate_search", False) and effect.stage == "input":
+            # an expensive model runs once per input value: values on a 2 % (log) or 0.005 grid
+            # recur from step to step, and the model's output for them is still cached
+            nl = {p.name: _snap(nl[p.name], p) for p in effect.search}
         act = Active(effect, nl)
         cfg = config.with_effect(act)
         nm = names + [f"{effect.name}.{n}" for n in effect.linear_names()]
@@ -531,6 +535,15 @@ class StepwiseSelection:
             problem.surrogate_search = surrogate
         current = problem.fit(config, coefs, names)
         return config, current
+
+
+def _snap(v: float, p) -> float:
+    """A searched value on a coarse grid (2 % steps in log, 0.005 otherwise), inside its bounds."""
+    if p.log and v > 0:
+        v = float(np.exp(np.round(np.log(v) / 0.02) * 0.02))
+    else:
+        v = float(np.round(v / 0.005) * 0.005)
+    return float(np.clip(v, *p.bounds))
 
 
 def _parabola_min(x: np.ndarray, y: np.ndarray) -> float | None:
