@@ -120,3 +120,27 @@ def test_pool_verdict_flags_gaits_optimised_for_another_task(tmp_path):
     _pool_results(ds, 12.0, [8.0, 9.0], [9.0, 10.0], [40.0, 41.0], [52.0, 58.0])
     (text,) = report.pool_verdict(ds, ds / "scores/pool")
     assert "gaits beat EF gaits" in text and "Caveat:" in text
+
+
+def test_sensitivity_section_averages_total_indices_over_gaits(tmp_path):
+    ds = tmp_path / "datasets"
+    names = ["extra_yaw_damping_nms", "yaw_inertia_kgm2"]
+    factors = [{"name": "extra_yaw_damping_nms", "low": 0.0, "high": 0.02, "unit": "N m s"},
+               {"name": "yaw_inertia_kgm2", "low": 0.022, "high": 0.045, "unit": "kg m^2"}]
+
+    def idx(st):
+        return {"first_order": dict(zip(names, st, strict=True)), "total_order": dict(zip(names, st, strict=True))}
+
+    _write(ds / "reports/sensitivity/turn-ef/sensitivity.json", {
+        "task": "turn", "n_simulations": 64, "factors": factors,
+        "indices": {"#1": idx([0.9, 0.1]), "#2": idx([0.5, 0.3]), "ranking_kendall_tau": idx([0.2, 0.6])},
+        "ranking": {"kendall_tau_mean": 0.81, "kendall_tau_min": 0.36, "nominal_best_stays_best_fraction": 1.0},
+        "unconverged_samples": {"#3": [4, 7]}})
+    sec = report.sensitivity_section(ds)
+    (caption, header, rows), = sec.tables
+    assert rows[0][0] == "extra_yaw_damping_nms" and rows[0][2] == "0.700" and rows[0][3] == "0.900"
+    assert rows[1][2] == "0.200" and rows[1][4] == "0.600"
+    assert "stays best in 100 %" in sec.paragraphs[0] and "depend most on extra_yaw_damping_nms" in sec.paragraphs[0]
+    assert "Unconverged samples (not scored): 2" in sec.paragraphs[0]
+    assert "No sensitivity study yet" in report.render_markdown(report.collect(tmp_path / "empty", with_mlflow=False),
+                                                               tmp_path)

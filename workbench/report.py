@@ -263,6 +263,44 @@ def pool_verdict(datasets: Path, scores_dir: Path) -> list[str]:
     return out
 
 
+def sensitivity_section(datasets: Path) -> Section:
+    """How much the robot constants the paper does not give move the gait scores and ranking (Sobol)."""
+    sec = Section("Sensitivity to the estimated robot constants")
+    for sj in sorted((datasets / "reports" / "sensitivity").glob("*/sensitivity.json")):
+        doc = _load_json(sj) or {}
+        factors = [f.get("name") for f in doc.get("factors", []) if isinstance(f, dict)]
+        indices = doc.get("indices") or {}
+        gait_keys = [k for k, v in indices.items() if v and k != "ranking_kendall_tau"]
+        rank = indices.get("ranking_kendall_tau") or {}
+        rows = []
+        for f in doc.get("factors", []):
+            name = f.get("name")
+            st = [indices[k]["total_order"].get(name) for k in gait_keys]
+            st = [v for v in st if isinstance(v, (int, float))]
+            rows.append([name, f"{_fmt(f.get('low'))}-{_fmt(f.get('high'))} {f.get('unit', '')}".strip(),
+                         _fmt(sum(st) / len(st)) if st else "-", _fmt(max(st)) if st else "-",
+                         _fmt((rank.get("total_order") or {}).get(name))])
+        if not factors:
+            continue
+        r = doc.get("ranking") or {}
+        sec.tables.append((f"{sj.parent.name}: total Sobol index (ST) of each factor, {doc.get('task', '?')} gaits, "
+                           f"{doc.get('n_simulations', '?')} simulations",
+                           ["factor", "range", "ST of gait scores (mean)", "ST (max)", "ST of ranking (Kendall tau)"],
+                           rows))
+        top = max(rows, key=lambda row: float(row[2]) if row[2] != "-" else -1.0)
+        unconv = doc.get("unconverged_samples") or {}
+        sec.paragraphs.append(
+            f"**{sj.parent.name}:** ranking against the nominal robot: Kendall tau {_fmt(r.get('kendall_tau_mean'), 2)} "
+            f"on average (worst {_fmt(r.get('kendall_tau_min'), 2)}); the nominal best gait stays best in "
+            f"{100 * float(r.get('nominal_best_stays_best_fraction') or 0):.0f} % of the samples. "
+            f"The scores depend most on {top[0]}: measure it first (docs/sensitivity.md says how)."
+            + (f" Unconverged samples (not scored): {sum(len(v) for v in unconv.values())}." if unconv else ""))
+        sec.figures += [p for p in [sj.parent / "sensitivity.png"] if p.is_file()]
+    if not sec.tables:
+        sec.paragraphs.append("No sensitivity study yet (workbench sensitivity; docs/sensitivity.md).")
+    return sec
+
+
 def diagnosis_section(datasets: Path) -> Section:
     """Residual diagnosis: effects found with parameters, error before and after, what stays unexplained."""
     sec = Section("Closing the loop: model diagnosis")
@@ -317,7 +355,8 @@ def collect(datasets: Path, tracking_uri: str | None = None, ui_url: str = "http
             with_mlflow: bool = True) -> list[Section]:
     """All report sections, in the order the data flows through the workbench."""
     secs = [campaigns_section(datasets), drag_section(datasets), leg_models_section(datasets),
-            gaits_section(datasets), trials_section(datasets), diagnosis_section(datasets)]
+            gaits_section(datasets), sensitivity_section(datasets), trials_section(datasets),
+            diagnosis_section(datasets)]
     if with_mlflow:
         secs.append(mlflow_section(tracking_uri, ui_url))
     return secs
