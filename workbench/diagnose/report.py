@@ -226,6 +226,11 @@ def markdown(d, figures: dict[str, str]) -> str:
              f"{len(d.train_runs)} training runs, {len(d.heldout_runs)} held-out runs (chosen from the motion "
              f"parameters, every flow speed of a set on the same side); {d.runtime_s:.1f} s.", "",
              "## Error on held-out runs", "", "| channel | MSE before | MSE after | removed |", "|---|---|---|---|"]
+    if d.reference:
+        r = d.reference
+        lines[4:4] = [f"Against reference campaign `{r['campaign']}`: the base model's stroke-locked misfit there "
+                      f"({r['matched_runs']} runs matched exactly, {r['nearest_neighbour_runs']} by nearest "
+                      "parameters) is part of the prediction, so only what changed since is diagnosed.", ""]
     for c in CHANNELS:
         b, a = d.mse_before[c], d.mse_after[c]
         lines.append(f"| {c} | {b:.4g} | {a:.4g} | {(1 - a / b) if b > 0 else 0:.0%} |")
