@@ -143,7 +143,6 @@ class Bench:
         import dataclasses
 
         from workbench.diagnose.loop import DiagnoseSettings, diagnose
-        from workbench.hydro.legmodel import load_leg_model
 
         s = DiagnoseSettings()
         s = dataclasses.replace(s, data=dataclasses.replace(s.data, max_runs=self.max_runs))
@@ -213,7 +212,7 @@ def score(c: Case, d, clean) -> dict:
     hit = added > 0.05 * cb
     share = float((removed[hit] / cb[hit]).sum() / (added[hit] / cb[hit]).sum()) if hit.any() else None
     return {"case": c.name, "named": sorted(named), "hits": hits, "param_err": param_err, "extra": extra,
-            "lines_ok": lines_ok, "removed_share": share, "channels": [k for k, h in zip(ch, hit) if h],
+            "lines_ok": lines_ok, "removed_share": share, "channels": [k for k, h in zip(ch, hit, strict=True) if h],
             "unexplained": [(u.kind, u.channels, None if u.frequency_hz is None else round(u.frequency_hz, 2))
                             for u in d.unexplained],
             "ambiguous": {e.name: e.ambiguous_with for e in d.effects if e.ambiguous_with},

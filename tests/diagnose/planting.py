@@ -212,7 +212,7 @@ class flow_tone:  # noqa: N801 - used like the other plant factories
             f = np.stack([np.column_stack([np.interp(grid, t, w[:, j]) for j in range(6)]) for _, t, w in tabs])
             v = np.vander(u, 3)                      # columns U^2, U, 1
             coef = np.linalg.lstsq(v, f.reshape(len(u), -1), rcond=None)[0].reshape(3, len(grid), 6)
-            for run, uu in zip(runs, u):
+            for run, uu in zip(runs, u, strict=True):
                 self.sens[run["id"]] = (grid, uu * (2 * coef[0] * uu + coef[1]))   # U dF/dU
 
     def __call__(self, lc, mo, run):

@@ -123,23 +123,27 @@ class Problem:
                             surrogate=surrogate)
 
     def grams(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
-              sets: str = "all") -> lsq.Grams:
-        """Block sums of ``config`` (columns restricted to ``names`` when given)."""
+              sets: str = "all", surrogate: bool | None = None) -> lsq.Grams:
+        """Block sums of ``config`` (columns restricted to ``names`` when given).
+
+        ``surrogate``: input effects through :class:`~workbench.diagnose.chain.SurrogateContext`
+        when the model is expensive (None: for the search subsample only).
+        """
         parts = []
-        surrogate = sets == "search" and getattr(self, "surrogate_search", False)
+        surrogate = (sets == "search" if surrogate is None else surrogate) and getattr(self, "surrogate_search", False)
         for rs, blocks in self.sets(sets):
             d = self.design(rs, config, coefs, names, surrogate=surrogate)
             parts.append(lsq.accumulate(d, rs, blocks, names if names is not None else d.names))
         return lsq.concat(parts)
 
     def fit(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
-            sets: str = "all", fixed: dict | None = None) -> lsq.Fit:
+            sets: str = "all", fixed: dict | None = None, surrogate: bool | None = None) -> lsq.Fit:
         """Fit ``config``; repeats while crosstalk columns depend on the force coefficients."""
         coefs = dict(coefs or {})
         passes = self.settings.passes if _reads_prediction(config) else 1
         result = None
         for _ in range(max(1, passes)):
-            gr = self.grams(config, coefs, names, sets)
+            gr = self.grams(config, coefs, names, sets, surrogate)
             result = lsq.fit(gr, self.weights, self.settings.hac_lags, fixed)
             new = result.coefs()
             change = max((abs(new[k] - coefs.get(k, 0.0)) / (abs(new[k]) + 1e-12) for k in new

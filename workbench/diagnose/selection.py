@@ -80,6 +80,8 @@ class Candidate:
     note: str = ""
     #: a second linear effect claimed together with this one (each may hide the other alone)
     partner: Effect | None = None
+    #: fitted through the expensive model's surrogate (refitted with the model before a claim)
+    surrogate: bool = False
 
     @property
     def label(self) -> str:
@@ -274,8 +276,11 @@ class StepwiseSelection:
         act = Active(effect, nl)
         cfg = config.with_effect(act)
         nm = names + [f"{effect.name}.{n}" for n in effect.linear_names()]
-        f = problem.fit(cfg, coefs, nm)
-        return Candidate(effect, act, cfg, nm, f, profile=profile)
+        # an input effect with an expensive model is screened through the surrogate; only the
+        # candidate about to be claimed is refitted with the model itself (select)
+        sur = bool(getattr(problem, "surrogate_search", False) and effect.stage == "input")
+        f = problem.fit(cfg, coefs, nm, surrogate=sur)
+        return Candidate(effect, act, cfg, nm, f, profile=profile, surrogate=sur)
 
     def _null_correction(self, problem, cand: Candidate, coefs, current: lsq.Fit) -> np.ndarray | None:
         variants = cand.effect.null_variants(cand.active.nl)
@@ -336,29 +341,8 @@ class StepwiseSelection:
             # judgement: a drift fitted in six channels where one drifts would lose in the other five
             cands = [self._prune(problem, c, coefs) if any(e.prunable for e in c.effects) else c for c in cands]
             for c in cands:
-                corr = self._null_correction(problem, c, coefs, current)
-                c.test, c.gain_c = judge(current, c.fit, c.fit.grams, hac, corr)
-                reasons = []
-                if c.test["p"] >= level:
-                    reasons.append(f"not significant (p={c.test['p']:.2g} >= {level:.2g})")
-                if c.gain_c.max() < s.min_gain:
-                    reasons.append(f"held-out gain {c.gain_c.max():.1%} < {s.min_gain:.0%}")
-                if not reasons:
-                    why = _implausible(c) or _heavy_mode(c, s.max_mode_zeta)
-                    if why:
-                        reasons.append(f"implausible: {why}")
-                if not reasons:
-                    why = _spans_zero(c, s.interval_z)
-                    if why:
-                        reasons.append(why)
-                if not reasons and plausible is not None:
-                    ok, note = plausible(c, config, current)
-                    if not ok:
-                        reasons.append(note)
-                c.ok = not reasons
-                c.note = "; ".join(reasons)
-                table.append({"effect": c.effect.name, "label": c.label, "t": c.test["t"], "p": c.test["p"],
-                              "llr": c.test["llr"], "max_gain": float(c.gain_c.max()), "ok": c.ok, "note": c.note})
+                self._assess(problem, c, coefs, current, config, level, plausible)
+                table.append(_row(c))
             single = {c.effect.name: c.test["llr"] for c in cands if c.partner is None}
             for c in cands:
                 if c.partner is not None and c.ok:
@@ -368,9 +352,22 @@ class StepwiseSelection:
                         c.note = f"no better than its members alone (x{s.pair_margin:g} needed)"
                         table[cands.index(c)].update(ok=False, note=c.note)
             ok = [c for c in cands if c.ok]
-            if not ok:
+            best = None
+            while ok:
+                best = max(ok, key=lambda c: c.test["llr"])
+                if not best.surrogate:
+                    break
+                # screened through the surrogate: the claim is judged with the model itself
+                best.fit = problem.fit(best.config, coefs, best.names, surrogate=False)
+                best.surrogate = False
+                self._assess(problem, best, coefs, current, config, level, plausible)
+                table[cands.index(best)] = _row(best)
+                if best.ok:
+                    break
+                ok.remove(best)
+                best = None
+            if best is None:
                 break
-            best = max(ok, key=lambda c: c.test["llr"])
             mine = {e.name for e in best.effects}
             alternatives = [c.label for c in cands if c is not best and not {e.name for e in c.effects} & mine
                             and c.test["llr"] >= s.ambiguity_ratio * best.test["llr"] and c.test["llr"] > 0]
@@ -388,6 +385,31 @@ class StepwiseSelection:
             config, current = self._refine(problem, config, coefs, names, current)
         config, names, current, steps = self._backward_check(problem, config, names, current, steps)
         return SelectionResult(config, names, current, steps, table)
+
+    def _assess(self, problem, c: Candidate, coefs, current, config, level: float, plausible) -> None:
+        """Judge a candidate on the held-out runs and check every claim criterion (sets ``c.ok``, ``c.note``)."""
+        s = self.settings
+        corr = self._null_correction(problem, c, coefs, current)
+        c.test, c.gain_c = judge(current, c.fit, c.fit.grams, problem.settings.hac_lags, corr)
+        reasons = []
+        if c.test["p"] >= level:
+            reasons.append(f"not significant (p={c.test['p']:.2g} >= {level:.2g})")
+        if c.gain_c.max() < s.min_gain:
+            reasons.append(f"held-out gain {c.gain_c.max():.1%} < {s.min_gain:.0%}")
+        if not reasons:
+            why = _implausible(c) or _heavy_mode(c, s.max_mode_zeta)
+            if why:
+                reasons.append(f"implausible: {why}")
+        if not reasons:
+            why = _spans_zero(c, s.interval_z)
+            if why:
+                reasons.append(why)
+        if not reasons and plausible is not None:
+            ok, note = plausible(c, config, current)
+            if not ok:
+                reasons.append(note)
+        c.ok = not reasons
+        c.note = "; ".join(reasons)
 
     def _ambiguous(self, best: Candidate, cands: list[Candidate], level: float, hac: int,
                    separate_alpha: float) -> list[str]:
@@ -537,6 +559,12 @@ class StepwiseSelection:
         return config, current
 
 
+def _row(c: Candidate) -> dict:
+    """A candidate's line in the selection record."""
+    return {"effect": c.effect.name, "label": c.label + (" (surrogate)" if c.surrogate else ""), "t": c.test["t"],
+            "p": c.test["p"], "llr": c.test["llr"], "max_gain": float(c.gain_c.max()), "ok": c.ok, "note": c.note}
+
+
 def _snap(v: float, p) -> float:
     """A searched value on a coarse grid (2 % steps in log, 0.005 otherwise), inside its bounds."""
     if p.log and v > 0:
@@ -572,7 +600,7 @@ LOCATION_PARAMS = {"f_n_hz", "zeta", "tone_hz", "arm_m", "rms_fraction"}
 
 
 def magnitude_intervals(params: dict, stderr: dict, z: float = 1.96) -> dict[str, bool]:
-    """For each magnitude parameter with a finite error: does its interval ``value +- z se`` hold zero?"""
+    """Per magnitude parameter with a finite error: whether its interval ``value +- z se`` holds zero."""
     out = {}
     for k, v in params.items():
         if k in LOCATION_PARAMS or not isinstance(v, (int, float)) or isinstance(v, bool):
