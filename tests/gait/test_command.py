@@ -33,7 +33,9 @@ def test_optimize_writes_contract_files_and_an_mlflow_run(tmp_path, capsys):
     assert rc == 0
     doc = json.loads((out / "straight-ef.json").read_text())
     check_contract_gait_file(doc, "straight", "ef")
-    assert len(doc["solutions"]) == 8
+    assert len(doc["solutions"]) == yaml.safe_load(open(params))["optimize"]["retain"]
+    assert doc["unconverged_gaits"] == 0 and doc["simulated_gaits"] >= 24 and doc["gait_space"] == "paper"
+    assert all(s["converged"] for s in doc["solutions"])
     folder = out / "straight-ef"
     for name in ("controller.json", "best.csv", "history.csv", "population.csv"):
         assert (folder / name).stat().st_size > 0
@@ -55,6 +57,8 @@ def test_optimize_writes_contract_files_and_an_mlflow_run(tmp_path, capsys):
     assert run.data.tags["campaign"] == "tow-a" and run.data.tags["kind"] == "optimize"
     hv = client.get_metric_history(run.info.run_id, "hypervolume")
     assert sorted(m.step for m in hv) == [1, 2, 3]
+    assert sorted(m.step for m in client.get_metric_history(run.info.run_id, "unconverged")) == [1, 2, 3]
+    assert run.data.metrics["final_unconverged_gaits"] == 0
     assert run.data.params["nsga2.pop_size"] == "8"
     arts = {a.path for a in client.list_artifacts(run.info.run_id)}
     assert {"straight-ef.json", "straight-ef", "best_table.json"} <= arts

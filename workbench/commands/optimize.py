@@ -16,7 +16,11 @@ def register(sub) -> None:
         "(controller.json for the robot, best.csv, history.csv, population.csv, pareto.png, "
         "hypervolume.png, trajectories.png) and OUT/<task>-<model>.metrics.json, and logs an MLflow run "
         "(experiment 'optimize'). Models with memory (the FED-LSTM) are served from per-gait tables of "
-        "one steady cycle over a flow-speed grid (docs/gaits.md). Every constant: pipelines/gait.yaml.",
+        "one steady cycle over a flow-speed grid (docs/gaits.md). The default tasks are the pool trials' "
+        "(straight: 2 m within 60 s; turn: 360 deg within 60 s; f3 the time to finish). A gait whose "
+        "simulation did not converge is penalised (ranked below every converged one) and counted "
+        "(unconverged_gaits in the gait and metrics files and MLflow). Every constant: pipelines/gait.yaml "
+        "(space.extension: per_side_range adds per-side joint ranges, which turn; docs/gaits.md).",
         examples="""\
   workbench optimize --task straight --model ef --params pipelines/gait.yaml --out datasets/gaits
   workbench optimize --task turn --model lstm --out datasets/gaits

@@ -112,8 +112,13 @@ def best_table(spec: TaskSpec, gaits: GaitBatch, f: np.ndarray, s: np.ndarray) -
     """One flat row per retained gait (rank, parameters, objectives, score): the best-8 table."""
     rows = []
     for i, p in enumerate(gaits.to_params()):
-        row = {"rank": i + 1, "theta_h_min_deg": p["theta_h_min_deg"], "theta_k_max_deg": p["theta_k_max_deg"],
-               "frequency_hz": p["frequency_hz"]}
+        row = {"rank": i + 1}
+        for name in ("theta_h_min_deg", "theta_k_max_deg"):
+            if isinstance(p[name], list):  # per-leg values (a gait-space extension): one column per leg
+                row.update({f"{name[:-4]}_{leg.lower()}_deg": v for leg, v in zip(LEG_NAMES, p[name], strict=True)})
+            else:
+                row[name] = p[name]
+        row["frequency_hz"] = p["frequency_hz"]
         row.update({f"alpha_{leg.lower()}_rad": a for leg, a in zip(LEG_NAMES, p["alpha_rad"], strict=True)})
         row.update({"f1": float(f[i, 0]), "f2": float(f[i, 1]), "f3": float(f[i, 2]), "score": float(s[i])})
         rows.append(row)
