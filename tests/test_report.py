@@ -144,3 +144,13 @@ def test_sensitivity_section_averages_total_indices_over_gaits(tmp_path):
     assert "Unconverged samples (not scored): 2" in sec.paragraphs[0]
     assert "No sensitivity study yet" in report.render_markdown(report.collect(tmp_path / "empty", with_mlflow=False),
                                                                tmp_path)
+
+
+def test_pool_verdict_when_no_turn_finishes(tmp_path):
+    ds = tmp_path / "datasets"
+    # neither model finishes; the FED-LSTM predicted 45 s for its gaits, the EF 60 s (unfinished too)
+    _pool_results(ds, 60.0, [45.0, 45.0], [60.0, 60.0], [60.0, 60.0], [60.0, 60.0])
+    (text,) = report.pool_verdict(ds, ds / "scores/pool")
+    assert "neither model's gaits finished the task within 60 s" in text
+    assert "mean yaw torque cancels" in text
+    assert "FED-LSTM predicted its gaits to finish in 45.0 s" in text and "EF predicted its gaits" not in text
