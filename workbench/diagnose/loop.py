@@ -505,16 +505,41 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
     cov.update({(k, k): v * v for k, v in nl_se.items()})
     local = _local_table(final, final.grams, problem.campaign)
     order = [st.candidate.effect.name for st in result.steps]
+    coefs = final.coefs()
+    prefix_fits: dict[frozenset, lsq.Fit] = {}
+
+    def prefix_fit(members) -> lsq.Fit:
+        key = frozenset(members)
+        if key not in prefix_fits:
+            part = Configuration([a for a in config.actives if a.name in key])
+            prefix_fits[key] = problem.fit(part, coefs, [n for n in names if n.split(".", 1)[0] in key])
+        return prefix_fits[key]
+
+    def heldout_mse(f: lsq.Fit) -> np.ndarray:
+        h = f.grams.heldout
+        return f.sse_block_c[h].sum(axis=0) / max(f.grams.n[h].sum(), 1)
+
+    # an effect that only helps once a later one is in (a collinear partner) would show a negative
+    # share in selection order: it moves one place later until every share is positive
+    for _ in range(len(order) ** 2):
+        prev_m = heldout_mse(base_fit)
+        moved = False
+        for i in range(len(order) - 1):
+            m = heldout_mse(prefix_fit(order[: i + 1]))
+            if np.mean((prev_m - m) / np.maximum(prev_m, 1e-300)) <= 0:
+                order[i], order[i + 1] = order[i + 1], order[i]
+                moved = True
+                break
+            prev_m = m
+        if not moved:
+            break
     # sequential held-out MSE with the final nonlinear values: effect i's share of the error removed
     prev = base_fit
     hb = base_fit.grams.heldout
     m0 = base_fit.sse_block_c[hb].sum(axis=0) / max(base_fit.grams.n[hb].sum(), 1)
     reports = []
-    coefs = final.coefs()
     for i, name in enumerate(order):
-        part = Configuration([a for a in config.actives if a.name in order[: i + 1]])
-        pnames = [n for n in names if n.split(".", 1)[0] in order[: i + 1]]
-        f = problem.fit(part, coefs, pnames)
+        f = prefix_fit(order[: i + 1])
         h = f.grams.heldout
         n_h = max(f.grams.n[h].sum(), 1)
         mp = prev.sse_block_c[h].sum(axis=0) / n_h
@@ -529,7 +554,7 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
                    if a.split(".", 1)[0] == name and b.split(".", 1)[0] == name}
         params, se = act.effect.canonical_params(eff_coefs, dict(act.nl), eff_cov,
                                                  local if name == "flow_unsteadiness" else None)
-        step = result.steps[i]
+        step = next(st for st in result.steps if st.candidate.effect.name == name)
         best_c = CHANNELS[int(np.argmax(step_rel))]
         reduction = float(by_ch.mean())
         hint = _hint(name, ev_before, params)

@@ -335,13 +335,19 @@ class StepwiseSelection:
                     progress(e.name)
             if not cands:
                 break
-            level = s.alpha / len(cands)
+            # Bonferroni within two families: single effects (each tone peak counts) and pairs of
+            # linear effects (a pair must also beat its members alone by pair_margin); a library of
+            # 15 linear effects has 105 pairs, which would otherwise drown every single effect
+            n_pairs = sum(c.partner is not None for c in cands)
+            n_single = len(cands) - n_pairs
+            levels = {False: s.alpha / max(n_single, 1), True: s.alpha / max(n_pairs, 1)}
+            level = levels[False]
             table = []
             # entries of crosstalk and drift are chosen on the training runs before the held-out
             # judgement: a drift fitted in six channels where one drifts would lose in the other five
             cands = [self._prune(problem, c, coefs) if any(e.prunable for e in c.effects) else c for c in cands]
             for c in cands:
-                self._assess(problem, c, coefs, current, config, level, plausible)
+                self._assess(problem, c, coefs, current, config, levels[c.partner is not None], plausible)
                 table.append(_row(c))
             single = {c.effect.name: c.test["llr"] for c in cands if c.partner is None}
             for c in cands:
