@@ -110,3 +110,26 @@ def test_cli_reads_a_processed_file_and_refuses_bad_input(tmp_path, capsys):
     assert main(["diagnose", "--campaign", str(camp), "--model", "no-such-model", "--out", str(out),
                  "--no-mlflow"]) == 2
     assert (out / "diagnosis.json").read_text() == before
+
+
+@pytest.mark.slow
+def test_a_virtual_campaign_shows_its_truth_beside_the_fitted_parameters(tmp_path):
+    camp = campaign(tmp_path, (), truth="rich", n_sets=8)
+    out = tmp_path / "diag"
+    assert main(["diagnose", "--campaign", str(camp), "--model", "ef", "--out", str(out), "--no-mlflow",
+                 "--no-figures"]) == 0
+    doc = json.loads((out / "diagnosis.json").read_text())
+    shown = [e for e in doc["effects"] if "virtual_truth" in e]
+    assert shown, [e["name"] for e in doc["effects"]]
+    # the truth's own numbers (virtual_lab.yaml / physics.py): C_N90 1.17, the EF's C_R 0.7 taken out
+    truth = json.loads((camp / "truth.json").read_text())["truth"]["params"]
+    for e in shown:
+        if e["name"] == "normal_force_law":
+            assert e["virtual_truth"]["c_n90"] == pytest.approx(truth.get("c_n90", 1.17))
+        assert set(e["virtual_truth"]) & set(e["params"])  # the truth speaks of the fitted parameters
+    assert "| virtual truth |" in (out / "report.md").read_text()
+    # a real campaign (no truth.json) gets no such key
+    (camp / "truth.json").rename(tmp_path / "truth.json")
+    assert main(["diagnose", "--campaign", str(camp), "--model", "ef", "--out", str(out), "--no-mlflow",
+                 "--no-figures"]) == 0
+    assert not any("virtual_truth" in e for e in json.loads((out / "diagnosis.json").read_text())["effects"])

@@ -111,6 +111,38 @@ def _frame(args, path: str | None = None):
     return result.frame, (rp.lowpass_cutoff_hz, rp.lowpass_order), str(folder)
 
 
+def _virtual_truth(args, frame) -> dict | None:
+    """For a virtual-lab campaign with the rich truth: the library parameters its truth gives (else None).
+
+    The truth is the campaign folder's ``truth.json`` (``--campaign``), or, for ``--processed``, the
+    one in ``datasets/raw/<campaign_id>/`` of this project when its campaign id matches. Real
+    campaigns have none, and nothing changes for them.
+    """
+    import json
+    from pathlib import Path
+
+    from workbench.diagnose.library import truth_reference
+    from workbench.project import project_root
+
+    if args.campaign:
+        path = Path(args.campaign) / "truth.json"
+    else:
+        ids = frame["campaign_id"].unique().to_list() if "campaign_id" in frame.columns else []
+        if len(ids) != 1:
+            return None
+        path = project_root() / "datasets" / "raw" / str(ids[0]) / "truth.json"
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(doc, dict) or not isinstance(doc.get("truth"), dict):
+        return None
+    if not args.campaign and doc.get("campaign_id") != frame["campaign_id"][0]:
+        return None
+    ref = truth_reference(doc["truth"])
+    return {k: v for k, v in ref.items() if k != "notes"} or None
+
+
 def _readable(folder) -> None:
     """Open the output up to the usual umask permissions (the atomic temp folder is private)."""
     import os
@@ -163,13 +195,18 @@ def run(args) -> int:
                  progress=lambda msg: info(f"  {msg}"), reference=reference, reference_source=ref_source)
     doc = d.to_json()
     doc["source"] = source
+    truth = _virtual_truth(args, frame) if args.model == "ef" and not args.reference else None
+    if truth:  # a virtual campaign: what its ground truth gives each claimed effect, beside the fit
+        for e in doc["effects"]:
+            if e["name"] in truth:
+                e["virtual_truth"] = truth[e["name"]]
     out = Path(args.out)
     from workbench.diagnose.report import write_report
 
     with atomic_dir(out) as tmp:
         write_json(tmp / "diagnosis.json", doc)
         d.augmented.save(tmp / "augmented_model.json")
-        write_report(d, tmp, figures=not args.no_figures)
+        write_report(d, tmp, figures=not args.no_figures, truth=truth)
         _readable(tmp)
     for e in d.effects:
         params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items() if isinstance(v, float))

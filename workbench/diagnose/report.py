@@ -219,7 +219,7 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def markdown(d, figures: dict[str, str]) -> str:
+def markdown(d, figures: dict[str, str], truth: dict | None = None) -> str:
     """The report text."""
     j = d.to_json()
     lines = [f"# Diagnosis of `{d.model}` on `{d.campaign_id}`", "",
@@ -242,11 +242,12 @@ def markdown(d, figures: dict[str, str]) -> str:
         lines += [f"### {e.name}", "", f"*{e.evidence}*", "",
                   f"Held-out MSE reduction (mean over channels, as a share of the model's error): "
                   f"**{e.heldout_mse_reduction:.1%}**; channels: {', '.join(e.channels) or '-'}.", "",
-                  "| parameter | value | std. error | 95 % interval |", "|---|---|---|---|"]
+                  "| parameter | value | std. error | 95 % interval | virtual truth |", "|---|---|---|---|---|"]
+        true = (truth or {}).get(e.name) or {}
         for k, v in e.params.items():
             ci = ej["ci95"].get(k)
             lines.append(f"| {k} | {_fmt(v)} | {_fmt(e.stderr.get(k))} | "
-                         f"{'-' if not ci else f'[{_fmt(ci[0])}, {_fmt(ci[1])}]'} |")
+                         f"{'-' if not ci else f'[{_fmt(ci[0])}, {_fmt(ci[1])}]'} | {_fmt(true.get(k))} |")
         lines.append("")
         for n in e.notes:
             lines.append(f"- {n}")
@@ -292,8 +293,12 @@ def markdown(d, figures: dict[str, str]) -> str:
     return "\n".join(lines)
 
 
-def write_report(d, out_dir: Path, figures: bool = True) -> list[Path]:
-    """Write ``report.md`` and its figures into ``out_dir``; returns the files written."""
+def write_report(d, out_dir: Path, figures: bool = True, truth: dict | None = None) -> list[Path]:
+    """Write ``report.md`` and its figures into ``out_dir``; returns the files written.
+
+    ``truth``: for a virtual campaign, the values its ground truth gives each effect's parameters
+    (:func:`workbench.diagnose.library.truth_reference`), shown beside the fitted ones.
+    """
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -316,6 +321,6 @@ def write_report(d, out_dir: Path, figures: bool = True) -> list[Path]:
             made[e.name] = f"figures/{p.name}"
             written.append(p)
     md = out_dir / "report.md"
-    md.write_text(markdown(d, made), encoding="utf-8")
+    md.write_text(markdown(d, made, truth), encoding="utf-8")
     written.append(md)
     return written
