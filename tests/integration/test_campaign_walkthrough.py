@@ -13,6 +13,8 @@ repository, its knobs shrunk so the whole loop takes minutes:
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import os
 import re
@@ -34,7 +36,7 @@ ALL_STAGES = {
     "virtual_lab_tunnel", "virtual_lab_towing", "ingest_tunnel@demo-tunnel", "ingest_towing@demo-towing",
     "interpolate@demo-tunnel", "fit_drag@demo-towing", "train", "tune", "evaluate",
     "optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight", "optimize_lstm@turn",
-    "virtual_pool", "score_trials", "diagnose", "report",
+    "virtual_pool", "score_trials", "sensitivity", "diagnose", "report",
 }
 # What a new tunnel campaign must rerun: its own ingest and interpolation, the learned models and
 # their evaluation, and what consumes the retrained model (LSTM gaits -> pool -> scores -> report).
@@ -214,8 +216,8 @@ def test_metrics_plots_and_experiments(project):
     out = _run(["dvc", "exp", "run", "-n", "more-generations", "-S", "pipelines/gait.yaml:optimize.nsga2.n_gen=3"],
                project, timeout=1800)
     assert _ran(out) == {"optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight",
-                         "optimize_lstm@turn", "virtual_pool", "score_trials", "report"}, out[-3000:]
+                         "optimize_lstm@turn", "virtual_pool", "score_trials", "sensitivity", "report"}, out[-3000:]
     table = _run(["dvc", "exp", "show", "--csv"], project, stdout_only=True)
-    header, *rows = [ln.split(",") for ln in table.strip().splitlines()]
+    header, *rows = list(csv.reader(io.StringIO(table.strip())))  # quoted values hold commas (lists)
     col = header.index("optimize.nsga2.n_gen")
     assert any(r[0] == "more-generations" and r[col] == "3" for r in rows), table
