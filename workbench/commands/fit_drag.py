@@ -22,7 +22,7 @@ def register(sub) -> None:
   workbench virtual-lab towing /tmp/tow && workbench fit-drag /tmp/tow --out /tmp/tow-drag
 """)
     p.add_argument("campaign", metavar="CAMPAIGN", help="towing-tank campaign folder, or its processed .parquet")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created; files replaced atomically)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder: created, or replaced whole when it holds an earlier fit-drag output (refused otherwise)")
     p.add_argument("--params", default="pipelines/drag.yaml", metavar="YAML",
                    help="parameter file with a 'fit' section (default: pipelines/drag.yaml; "
                    "built-in defaults when absent)")
@@ -88,12 +88,13 @@ def run(args) -> int:
     """Fit, then write drag.json, drag.png and drag.md (all computed before anything is written)."""
     from pathlib import Path
 
-    from workbench.atomic import write_bytes, write_json, write_text
+    from workbench.atomic import atomic_dir, check_replaceable, write_bytes, write_json, write_text
     from workbench.console import info
     from workbench.errors import WorkbenchError
     from workbench.hydro.drag import fit_drag
     from workbench.hydro.drag_report import drag_figure_png, drag_report_md
 
+    check_replaceable(args.out, "fit-drag")  # before the work, not after it
     params = _load_fit_params(args.params)
     frame, headings = _read(args.campaign, args.skip_bad_runs,
                             _section(args.ingest_params, "pipelines/ingest.yaml", "ingest"))
@@ -107,9 +108,11 @@ def run(args) -> int:
     png = drag_figure_png(fit, title=f"body drag: {name}")
     report = drag_report_md(fit, str(args.campaign))
     out = Path(args.out)
-    write_json(out / "drag.json", doc)
-    write_bytes(out / "drag.png", png)
-    write_text(out / "drag.md", report)
+    # one set: the three files are swapped in together (a kill leaves the old set or the new one)
+    with atomic_dir(out, verb="fit-drag") as tmp:
+        write_json(tmp / "drag.json", doc)
+        write_bytes(tmp / "drag.png", png)
+        write_text(tmp / "drag.md", report)
     for h in fit.headings():
         c2, c1, c0 = h.coefficients
         info(f"{h.heading:8s} F = {c2:.3f} v^2 {c1:+.3f} v {c0:+.3f}  R^2 {h.r2:.4f}  "

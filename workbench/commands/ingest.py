@@ -54,7 +54,6 @@ def load_section(path: Path | None, section: str, default_file: str) -> dict:
 
 def run(args) -> int:
     """Ingest (or say the output is up to date) and show the quality report."""
-    from workbench.atomic import write_json
     from workbench.console import info, progress
     from workbench.contract.campaign import load_campaign
     from workbench.ingest import ingest_to_file, quality_path, read_provenance
@@ -73,10 +72,7 @@ def run(args) -> int:
             result = ingest_to_file(args.campaign, out, params=values, skip_bad_runs=args.skip_bad_runs,
                                     force=args.force, progress=bar.advance)
     if result is None:
-        meta = read_provenance(out)
-        qpath = quality_path(out)
-        if not qpath.exists():
-            write_json(qpath, meta["quality"])
+        meta = read_provenance(out)  # ingest_to_file has brought quality.json in line with it
         info(f"up to date: {out} already holds these {len(meta['raw_files'])} raw files processed with the same "
              f"parameters; not reprocessed (--force to redo)")
         info(summary_line(meta["quality"]))

@@ -24,6 +24,7 @@ from workbench.ingest.provenance import (
     quality_path,
     read_processed,
     read_provenance,
+    sync_quality,
     write_processed,
 )
 
@@ -35,6 +36,7 @@ __all__ = [
     "quality_path",
     "read_processed",
     "read_provenance",
+    "sync_quality",
     "up_to_date",
     "write_processed",
 ]
@@ -55,8 +57,16 @@ def up_to_date(campaign_dir: str | Path, out: str | Path, params: IngestParams |
 def ingest_to_file(campaign_dir: str | Path, out: str | Path, *,
                    params: IngestParams | Mapping[str, Any] | None = None, skip_bad_runs: bool = False,
                    force: bool = False, progress=None) -> IngestResult | None:
-    """Ingest and write atomically; return None (nothing done) when ``out`` is already up to date."""
+    """Ingest and write atomically; return None (nothing done) when ``out`` is already up to date.
+
+    ``out`` inside a raw campaign folder is refused before any work. When ``out`` is up to date its
+    quality report is brought in line with the Parquet file's metadata (:func:`sync_quality`).
+    """
+    from workbench.atomic import check_not_raw
+
+    check_not_raw(out)
     if not force and up_to_date(campaign_dir, out, params, skip_bad_runs):
+        sync_quality(out)
         return None
     result = ingest_campaign(campaign_dir, params=params, skip_bad_runs=skip_bad_runs, progress=progress)
     write_processed(result, out)

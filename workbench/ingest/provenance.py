@@ -111,13 +111,40 @@ def write_table(table: pa.Table, path: str | Path) -> None:
 
 
 def write_processed(result, path: str | Path, *, quality: bool = True) -> Path:
-    """Write an ingest result atomically: the Parquet file and ``<name>.quality.json`` beside it."""
+    """Write an ingest result atomically: the Parquet file and ``<name>.quality.json`` beside it.
+
+    The two form one set with the Parquet file as its authority: its metadata holds the quality
+    report, and :func:`sync_quality` rewrites a missing or stale ``quality.json`` from it (a kill
+    between the two renames leaves the new Parquet beside the old report until the next ingest).
+    """
+    from workbench.atomic import check_not_raw
+
     path = Path(path)
+    check_not_raw(path)
+    check_not_raw(quality_path(path))
     meta = provenance_of(result)
     write_table(to_arrow(result.frame, result.campaign.facility, meta), path)
     if quality:
         write_json(quality_path(path), result.quality)
     return path
+
+
+def sync_quality(path: str | Path) -> bool:
+    """Make ``<name>.quality.json`` match the quality report in the Parquet file's metadata.
+
+    Returns True when it was missing or stale and has been rewritten.
+    """
+    path = Path(path)
+    want = read_provenance(path).get("quality")
+    q = quality_path(path)
+    try:
+        have = json.loads(q.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        have = None
+    if have == want:
+        return False
+    write_json(q, want)
+    return True
 
 
 def read_provenance(path: str | Path) -> dict[str, Any]:

@@ -15,7 +15,6 @@ from workbench.trials.folder import FolderResult, score_folder
 from workbench.trials.params import ScoringParams
 
 SUMMARY_SCHEMA = "workbench/trial-scores@1"
-_OUR_FILES = ("scores.csv", "summary.json")
 
 
 def score_rows(result: FolderResult) -> list[dict]:
@@ -52,17 +51,13 @@ def build_summary(result: FolderResult, scores, baseline: str | None) -> dict:
 
 
 def _check_out(out: Path, trials_dir: Path) -> None:
+    """Refuse an output inside the trials folder, or a folder that holds no earlier scores (workbench.atomic)."""
+    from workbench.atomic import check_replaceable
+
     if out.resolve().is_relative_to(trials_dir.resolve()):
         raise ContractError("the output folder lies inside the trials folder; raw folders are never modified",
-                            path=out)
-    if out.exists():
-        if not out.is_dir():
-            raise ContractError("output path exists and is not a folder", path=out)
-        # hidden files (a DVC-written .gitignore, say) are not somebody's results
-        visible = [p for p in out.iterdir() if not p.name.startswith(".")]
-        if visible and not any((out / f).exists() for f in _OUR_FILES):
-            raise ContractError("output folder is not empty and holds no earlier scores; refusing to replace it",
-                                path=out, hint="give a new or empty folder")
+                            path=out, hint="choose another --out")
+    check_replaceable(out, "score-trials")
 
 
 def run_scoring(trials_dir: str | Path, out_dir: str | Path, params: ScoringParams | None = None, *,
@@ -77,7 +72,7 @@ def run_scoring(trials_dir: str | Path, out_dir: str | Path, params: ScoringPara
     p = params or ScoringParams()
     trials_dir, out = Path(trials_dir), Path(out_dir)
     _check_out(out, trials_dir)
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, verb="score-trials") as tmp:
         result = score_folder(trials_dir, p, overlay_dir=tmp / "overlays", trial_ids=trial_ids,
                               show_progress=show_progress)
         if not result.results:
