@@ -1,0 +1,159 @@
+"""Which workbench source files a DVC stage's command can run, derived from the imports (issue 15.1).
+
+    python tests/stage_deps.py            # per stage: the files its deps in dvc.yaml miss
+
+A stage runs ``workbench <verb> ...``: the entry point ``workbench/cli.py`` imports every verb module
+to build its parser, but only the stage's own verb does work. So a stage's code is the closure of
+
+- ``workbench/cli.py`` and the stage's verb module ``workbench/commands/<verb>.py``, following
+  every import in them, module level and inside functions (a superset: a function-level import
+  may not run, but it can), and
+- every module named by a whole string in a reached module (``"workbench.learn.plugin"``):
+  plug-in tables import such modules by name. A ``"module:function"`` loader target is not
+  followed: it runs only when that model is asked for, and the stage asking for it names the
+  package in its deps;
+
+with the other verb modules left out: cli.py only calls their ``register`` (argument parsers).
+A package's ``__init__.py`` counts when any of its modules is imported.
+"""
+from __future__ import annotations
+
+import ast
+import re
+import sys
+from functools import lru_cache
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = ROOT / "workbench"
+MODULE_STRING = re.compile(r"workbench(?:\.[A-Za-z_][A-Za-z0-9_]*)+")
+VERB = re.compile(r"\bworkbench\s+([a-z][a-z-]*)")
+
+
+def module_file(name: str) -> Path | None:
+    """The file of a dotted ``workbench`` module name (module or package), or None."""
+    parts = name.split(".")
+    if parts[0] != "workbench":
+        return None
+    while parts:
+        base = ROOT.joinpath(*parts)
+        if base.with_suffix(".py").is_file():
+            return base.with_suffix(".py")
+        if (base / "__init__.py").is_file():
+            return base / "__init__.py"
+        parts = parts[:-1]  # "workbench.x.y" where y is an attribute of module x
+    return None
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+@lru_cache(maxsize=None)
+def direct_imports(path: Path) -> frozenset[Path]:
+    tree = ast.parse(path.read_text(), filename=str(path))
+    pkg = module_name(path).split(".")
+    if path.name != "__init__.py":
+        pkg = pkg[:-1]
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg[: len(pkg) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            names.add(mod)
+            names.update(f"{mod}.{a.name}" for a in node.names)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and MODULE_STRING.fullmatch(node.value):
+            names.add(node.value)  # a plug-in table naming a module it imports
+    files = set()
+    for n in names:
+        f = module_file(n)
+        if f is not None:
+            files.add(f)
+            # importing a.b.c runs a/__init__.py and a/b/__init__.py
+            parent = f.parent
+            while parent != ROOT and (parent / "__init__.py").is_file():
+                files.add(parent / "__init__.py")
+                parent = parent.parent
+    return frozenset(files)
+
+
+def closure(starts: list[Path], skip: set[Path]) -> set[Path]:
+    seen: set[Path] = set()
+    todo = list(starts)
+    while todo:
+        f = todo.pop()
+        if f in seen:
+            continue
+        seen.add(f)
+        todo.extend(g for g in direct_imports(f) if g not in seen and g not in skip)
+    return seen
+
+
+def verb_module(cmd: str) -> Path | None:
+    m = VERB.search(cmd)
+    if not m:
+        return None
+    f = PKG / "commands" / (m.group(1).replace("-", "_") + ".py")
+    return f if f.is_file() else None
+
+
+def stage_code(cmd: str) -> set[Path]:
+    verb = verb_module(cmd)
+    if verb is None:
+        return set()
+    others = {p for p in (PKG / "commands").glob("*.py") if p not in (verb, PKG / "commands" / "__init__.py",
+                                                                          PKG / "commands" / "_help.py")}
+    # cli.py's own imports, but not through the other verbs
+    return closure([PKG / "cli.py", verb], skip=others)
+
+
+def dvc_stages(dvc_yaml: Path = ROOT / "dvc.yaml") -> dict[str, dict]:
+    doc = yaml.safe_load(dvc_yaml.read_text())
+    out = {}
+    for name, st in doc["stages"].items():
+        if "foreach" in st:
+            st = st["do"]
+        out[name] = st
+    return out
+
+
+def dep_paths(stage: dict) -> list[Path]:
+    out = []
+    for d in stage.get("deps", []) or []:
+        out.append(ROOT / (d if isinstance(d, str) else next(iter(d))))
+    return out
+
+
+def covered(f: Path, deps: list[Path]) -> bool:
+    return any(f == d or d in f.parents for d in deps)
+
+
+def missing_deps() -> dict[str, list[str]]:
+    out = {}
+    for name, st in dvc_stages().items():
+        code = stage_code(st["cmd"] if isinstance(st["cmd"], str) else " ".join(st["cmd"]))
+        deps = dep_paths(st)
+        miss = sorted(str(f.relative_to(ROOT)) for f in code if not covered(f, deps))
+        if miss:
+            out[name] = miss
+    return out
+
+
+if __name__ == "__main__":
+    miss = missing_deps()
+    for stage, files in miss.items():
+        print(f"{stage}:")
+        for f in files:
+            print(f"  - {f}")
+    sys.exit(1 if miss else 0)
