@@ -20,17 +20,27 @@ def register(sub) -> None:
         "(straight: 2 m within 60 s; turn: 360 deg within 60 s; f3 the time to finish). A gait whose "
         "simulation did not converge is penalised (ranked below every converged one) and counted "
         "(unconverged_gaits in the gait and metrics files and MLflow). Every constant: pipelines/gait.yaml "
-        "(space.extension: per_side_range adds per-side joint ranges, which turn; docs/gaits.md).",
+        "(space.extension: per_side_range adds per-side joint ranges, which turn; docs/gaits.md). "
+        "Pipeline stages name a learned model by its saved folder (--model datasets/models/fed-lstm --label "
+        "lstm): a path is a DVC dependency, a registry alias is not. A registry spec (lstm, models:/...) "
+        "is resolved here and the version used is printed and recorded (gait file: model_source; MLflow tags "
+        "model_uri, model_version, model_path).",
         examples="""\
   workbench optimize --task straight --model ef --params pipelines/gait.yaml --out datasets/gaits
-  workbench optimize --task turn --model lstm --out datasets/gaits
+  workbench optimize --task turn --model lstm --out /tmp/gaits          # prints the registry version it used
+  workbench optimize --task straight --model datasets/models/fed-lstm-16 --label lstm16 --out /tmp/gaits
   workbench optimize --task straight --model models:/fed-lstm@tuned --pop 64 --gens 50 --seed 3 --out /tmp/gaits
   workbench optimize --task turn --model ef --drag datasets/drag/demo-towing/drag.json --no-mlflow --out /tmp/g
   workbench simulate --gaits datasets/gaits/straight-ef.json --rank 1 --out /tmp/best   # swim the winner
 """)
     p.add_argument("--task", required=True, choices=("straight", "turn"), help="what the robot should do")
     p.add_argument("--model", default="ef", help="leg force model: ef, lstm (registered FED-LSTM champion), "
-                   "models:/name@alias, or any registered spec (default: ef)")
+                   "models:/name@alias, models:/name/VERSION, a saved model folder (e.g. datasets/models/fed-lstm), "
+                   "or any registered spec (default: ef)")
+    p.add_argument("--label", default=None, metavar="NAME",
+                   help="name of the results: OUT/<task>-NAME.json, .metrics.json, the folder and the gait file's "
+                        "model field (letters, digits, - and _; default: derived from --model: ef, lstm, "
+                        "models:/fed-lstm@tuned -> fed-lstm-tuned, a folder -> its name)")
     p.add_argument("--params", default="pipelines/gait.yaml", metavar="YAML",
                    help="parameter file, section 'optimize' (default: pipelines/gait.yaml)")
     p.add_argument("--out", default="datasets/gaits", metavar="DIR", help="output folder (default: datasets/gaits)")
@@ -84,7 +94,6 @@ def run(args) -> int:
     from workbench.console import info
     from workbench.errors import ContractError
     from workbench.gait.config import load_config
-    from workbench.gait.export import model_label
     from workbench.gait.optimize import optimize_task
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
@@ -101,7 +110,13 @@ def run(args) -> int:
         from workbench.threads import apply_torch_threads
 
         apply_torch_threads(cfg.torch_threads)
-    label = model_label(args.model)
+    label = _label(args.label, args.model)
+    from workbench.learn.registry import provenance, provenance_line
+
+    source = provenance(model)
+    line = provenance_line(args.model, model)
+    if line:
+        info(line)
     info(f"optimising {args.task} gaits with leg model {args.model!r}: NSGA-II population {cfg.nsga2.pop_size}, "
          f"{cfg.nsga2.n_gen} generations, seed {cfg.nsga2.seed}, {ts.spec.cap_s:g} s swims")
     stack, show = _progress_printer(cfg.nsga2.n_gen)
@@ -109,6 +124,9 @@ def run(args) -> int:
         outcome = optimize_task(cfg, args.task, model, robot, model_label=label, model_spec=args.model,
                                 on_generation=show)
     m = outcome.metrics
+    if source:  # which registry version or folder the results come from (issue 15.1)
+        outcome.gait_doc["model_source"] = source
+        m["model_source"] = source
     if m["unconverged_gaits"]:
         info(f"warning: {m['unconverged_gaits']} of {m['simulated_gaits']} simulated gait(s) did not converge "
              f"(penalised: ranked below every converged gait; counted in the gait file and MLflow)")
@@ -146,7 +164,7 @@ def run(args) -> int:
 
         try:
             run_id = log_outcome(outcome, cfg.record() | {"task": args.task, "model": args.model}, folder,
-                                 [gaits_path, metrics_path], model_spec=args.model,
+                                 [gaits_path, metrics_path], model_spec=args.model, model_source=source,
                                  tracking_uri=args.tracking_uri or cfg.tracking.tracking_uri,
                                  experiment=cfg.tracking.experiment,
                                  campaigns=_campaigns(model, robot.drag_source))
@@ -154,6 +172,21 @@ def run(args) -> int:
         except Exception as exc:  # noqa: BLE001 - the results are on disk; tracking is the side channel
             info(f"warning: MLflow logging failed ({type(exc).__name__}: {str(exc).splitlines()[0][:160]})")
     return 0
+
+
+def _label(label: str | None, spec: str) -> str:
+    """The results' name: ``--label`` (checked: file-name safe) or one derived from the model spec."""
+    import re
+
+    from workbench.errors import ContractError
+    from workbench.gait.export import model_label
+
+    if label is None:
+        return model_label(spec)
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}", label):
+        raise ContractError(f"--label {label!r} is not a file-name-safe name", where="command line",
+                            hint="letters, digits, '-' and '_', e.g. lstm16")
+    return label
 
 
 def _campaigns(model, drag_source: str) -> list[str]:

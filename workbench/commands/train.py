@@ -15,6 +15,11 @@ EXAMPLES = """\
   # the EF-residual hybrid, quick look without MLflow
   workbench train --data d.parquet --set model.variant=ef_residual --set trainer.max_epochs=3 --no-mlflow --out /tmp/m
 
+  # the paper's 16-tick windows as their own registered model (models:/fed-lstm-16@champion), the
+  # 32-tick champion untouched
+  workbench train --data datasets/processed/interp --set data.seq_len=16 \
+      --out datasets/models/fed-lstm-16 --registered-model fed-lstm-16
+
   # adopt the best parameters of a search (tune writes them to best.json as overrides)
   workbench train --data d.parquet --set data.seq_len=24 --set model.hidden_size=96
 
@@ -37,6 +42,9 @@ def register(sub) -> None:
     add_common_options(p)
     p.add_argument("--out", metavar="DIR", help="model folder to write (default: the file's model_dir, "
                                                 "datasets/models/fed-lstm)")
+    p.add_argument("--registered-model", metavar="NAME",
+                   help="registered model to add the new version to (default: the file's tracking.registered_model, "
+                        "fed-lstm); e.g. fed-lstm-16 for the paper's 16-tick windows, so its champion is its own")
     p.add_argument("--alias", help="registry alias to point at the new version (default: the file's, champion)")
     p.add_argument("--no-register", action="store_true", help="log the model but do not register it")
     p.add_argument("--run-name", help="MLflow run name")
@@ -55,6 +63,8 @@ def run(args) -> int:
         over["model_dir"] = args.out
     if args.alias:
         over["tracking.alias"] = args.alias
+    if args.registered_model:
+        over["tracking.registered_model"] = args.registered_model
     if args.no_register:
         over["tracking.register"] = False
     if args.run_name:

@@ -27,8 +27,20 @@ GAITS_SCHEMA = "workbench/gaits@1"
 
 
 def model_label(spec: str) -> str:
-    """A file-name-safe label for a model spec: ``ef``, ``lstm``, ``models:/fed-lstm@tuned`` -> ``fed-lstm-tuned``."""
-    body = spec[len("models:/"):] if spec.startswith("models:/") else spec
+    """A file-name-safe label for a model spec: ``ef``, ``lstm``, ``models:/fed-lstm@tuned`` -> ``fed-lstm-tuned``.
+
+    A saved model folder (a spec that is an existing path) is named by its last component:
+    ``datasets/models/fed-lstm-16`` -> ``fed-lstm-16``; ``workbench optimize --label`` names it otherwise.
+    """
+    from pathlib import Path
+
+    if spec.startswith("models:/"):
+        body = spec[len("models:/"):]
+    elif ("/" in spec or "\\" in spec) and ":" not in spec and Path(spec).exists():
+        p = Path(spec)
+        body = (p.parent if p.name == "model.json" else p).resolve().name
+    else:
+        body = spec
     label = re.sub(r"[^a-z0-9_-]+", "-", body.lower()).strip("-")
     return label or "model"
 

@@ -5,7 +5,9 @@ Params: the flattened settings; metrics with steps: ``hypervolume``, ``best_scor
 ``final_unconverged_gaits`` counts every unconverged simulation of the run; final metrics from the outcome; artifacts: the gait file, the
 controller file, the best-8 table (CSV, and as an MLflow table), the history and the plots.
 Tags: ``kind`` (optimize), ``campaign`` (the campaigns behind the leg model and the body drag),
-``task``, ``model``, ``model_spec``, ``git_commit``, ``dvc_stage``.
+``task``, ``model``, ``model_spec``, ``git_commit``, ``dvc_stage``, and where the leg model came
+from: ``model_uri``, ``model_version`` and ``model_run_id`` (a registry spec, resolved: the version
+actually used) or ``model_path`` (a saved folder), those known.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ def _flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
 
 def log_outcome(outcome: GaitOutcome, settings: Mapping[str, Any], folder: Path, files: list[Path], *,
                 model_spec: str, tracking_uri: str | None, experiment: str, dvc_stage: str | None = None,
-                campaigns: list[str] | tuple[str, ...] = ()) -> str:
+                campaigns: list[str] | tuple[str, ...] = (), model_source: Mapping[str, str] | None = None) -> str:
     """Log one optimisation as an MLflow run; returns the run id."""
     import mlflow
     from mlflow.entities import Metric, Param
@@ -42,6 +44,10 @@ def log_outcome(outcome: GaitOutcome, settings: Mapping[str, Any], folder: Path,
     tags = {"kind": "optimize", "campaign": "+".join(dict.fromkeys(campaigns)) or "unknown",
             "task": outcome.task, "model": outcome.model, "model_spec": model_spec, "git_commit": git_commit(),
             "dvc_stage": dvc_stage or os.environ.get("DVC_STAGE") or "manual"}
+    for key, tag in (("model_uri", "model_uri"), ("model_version", "model_version"), ("run_id", "model_run_id"),
+                     ("model_path", "model_path")):
+        if (model_source or {}).get(key):
+            tags[tag] = str(model_source[key])
     with mlflow.start_run(run_name=f"{outcome.task}-{outcome.model}", tags=tags) as run:
         client = mlflow.MlflowClient()
         now = int(time.time() * 1000)

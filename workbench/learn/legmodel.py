@@ -104,7 +104,8 @@ class LearnedLegModel(LegForceModel):
     def describe(self) -> dict:
         """Variant, architecture and provenance (JSON)."""
         return {"name": self.name, "variant": self.model_cfg.variant, "seq_len": self.seq_len, "dt_s": self.dt_s,
-                **{k: v for k, v in self.info.items() if k in ("run_id", "model_uri", "git_commit", "campaigns")}}
+                **{k: v for k, v in self.info.items()
+                   if k in ("run_id", "model_uri", "model_version", "model_path", "git_commit", "campaigns")}}
 
 
 def model_record(model: LearnedLegModel) -> dict:
@@ -142,12 +143,15 @@ def load_model(folder: str | Path, **info) -> LearnedLegModel:
         raise ModelError(f"model.json is not JSON ({exc.msg})", path=spec_path) from exc
     if spec.get("schema") != MODEL_SCHEMA:
         raise ModelError(f"unknown model schema {spec.get('schema')!r}", path=spec_path, hint=f"expected {MODEL_SCHEMA}")
-    cfg = ModelCfg(**spec["model"])
-    net = build_net(cfg, int(spec["seq_len"]))
+    try:
+        cfg = ModelCfg(**spec["model"])
+        net = build_net(cfg, int(spec["seq_len"]))
+        dt_s, norm = float(spec["dt_s"]), Normalisation.from_dict(spec["normalisation"])
+    except (KeyError, TypeError, ValueError) as exc:  # a torn or hand-edited model.json: one line
+        raise ModelError(f"model.json is incomplete or malformed ({type(exc).__name__}: {exc})", path=spec_path) from None
     try:
         net.load_state_dict(torch.load(folder / "weights.pt", map_location="cpu", weights_only=True))
     except Exception as exc:  # noqa: BLE001 - missing, torn, foreign or mismatched weights: one line for all
         raise ModelError(f"weights.pt does not load ({str(exc).splitlines()[0]})", path=folder) from exc
-    return LearnedLegModel(net, model=cfg, seq_len=spec["seq_len"], dt_s=spec["dt_s"],
-                           norm=Normalisation.from_dict(spec["normalisation"]),
+    return LearnedLegModel(net, model=cfg, seq_len=spec["seq_len"], dt_s=dt_s, norm=norm,
                            info={**spec.get("info", {}), **info}, name=spec.get("name", "lstm"))

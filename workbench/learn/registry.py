@@ -6,6 +6,13 @@ the project's MLflow store (or ``MLFLOW_TRACKING_URI``). If the registry cannot 
 holds no such alias, it falls back to the local model folder ``datasets/models/fed-lstm`` that
 ``workbench train`` writes (a DVC output), with a warning line; if neither exists it fails with
 a one-line ModelError. ``WORKBENCH_LSTM_URI`` (a ``models:/`` URI or a folder) overrides both.
+
+A saved model folder (``model.json`` + ``weights.pt``, what ``workbench train --out`` writes and
+DVC tracks) also loads by its path: ``load_leg_model("datasets/models/fed-lstm-16")``. Pipeline
+stages name their model that way (issue 15.1): a path is a DVC dep, a registry alias is not.
+Whatever way a model was found, its ``describe()`` says where from: ``model_uri`` and
+``model_version`` (and ``run_id``) for the registry, ``model_path`` for a folder; see
+:func:`provenance` and :func:`provenance_line`.
 """
 
 from __future__ import annotations
@@ -39,6 +46,56 @@ def load_folder(path: str | Path, **info):
     return load_model(path, **info)
 
 
+def load_path(path: str | Path, **kwargs):
+    """A path to a saved learned model (its folder, or the folder's ``model.json``); None if it is not one.
+
+    The path-loader hook of :func:`workbench.hydro.legmodel.load_leg_model`: other kinds of saved
+    models (e.g. augmented models) answer for their own paths. A folder that says it is a learned
+    model but does not load (torn weights, a foreign schema) fails with a one-line ModelError.
+    """
+    import json
+
+    from workbench.learn.legmodel import MODEL_SCHEMA
+
+    p = Path(path)
+    if p.is_file() and p.name == "model.json":
+        p = p.parent
+    spec = p / "model.json"
+    if not spec.is_file():
+        return None
+    try:
+        head = json.loads(spec.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        head = None
+    if not isinstance(head, dict) or not str(head.get("schema", "")).startswith("workbench/learned-leg-model@"):
+        return None
+    if head.get("schema") != MODEL_SCHEMA:
+        raise ModelError(f"unknown model schema {head.get('schema')!r}", path=spec, hint=f"expected {MODEL_SCHEMA}")
+    return load_folder(p, model_path=str(path), **kwargs)
+
+
+def provenance(model) -> dict:
+    """Where a loaded leg model came from: ``model_uri``, ``model_version``, ``run_id``, ``model_path`` (those known)."""
+    d = model.describe() if hasattr(model, "describe") else {}
+    return {k: str(d[k]) for k in ("model_uri", "model_version", "run_id", "model_path") if d.get(k) is not None}
+
+
+def provenance_line(spec: str, model) -> str | None:
+    """One line for people: which registry version (or folder) ``spec`` resolved to; None for built-in models."""
+    p = provenance(model)
+    if p.get("model_version"):
+        uri = p.get("model_uri", spec)
+        name = uri[len("models:/"):].split("@")[0].split("/")[0] if uri.startswith("models:/") else uri
+        return (f"leg model {spec!r}: {uri} -> registered model {name} version {p['model_version']}"
+                + (f" (run {p['run_id']})" if p.get("run_id") else ""))
+    if p.get("model_path"):
+        return f"leg model {spec!r}: model folder {p['model_path']}" + (f" (trained in run {p['run_id']})"
+                                                                       if p.get("run_id") else "")
+    if p.get("model_uri"):
+        return f"leg model {spec!r}: {p['model_uri']}"
+    return None
+
+
 def load_model_uri(spec: str, *, tracking_uri: str | None = None):
     """``models:/name@alias`` or ``models:/name/version`` from the MLflow registry."""
     from workbench.learn.tracking import download_model
@@ -55,7 +112,7 @@ def load_champion(*, tracking_uri: str | None = None, name: str | None = None, a
     override = os.environ.get("WORKBENCH_LSTM_URI")
     if override:
         return load_model_uri(override, tracking_uri=tracking_uri) if override.startswith("models:") \
-            else load_folder(override, model_uri=override)
+            else load_folder(override, model_uri=override, model_path=override)
     d_name, d_alias, d_folder = _defaults()
     uri = f"models:/{name or d_name}@{alias or d_alias}"
     try:
@@ -64,6 +121,6 @@ def load_champion(*, tracking_uri: str | None = None, name: str | None = None, a
         folder = Path(fallback) if fallback else d_folder
         if (folder / "model.json").is_file():
             info(f"warning: {exc.format()}; using the local model folder {folder}")
-            return load_folder(folder, model_uri=str(folder))
+            return load_folder(folder, model_uri=str(folder), model_path=str(folder))
         raise ModelError(f"no trained LSTM: {exc.fault}", hint=f"run `workbench train` (writes {folder} and "
                          f"registers {uri})") from exc

@@ -34,8 +34,24 @@ from workbench.errors import ContractError, ModelError, WorkbenchError
 #: BGR paint of each contract colour name (saturated, mid-bright: what a printed marker looks like).
 MARKER_BGR = {"red": (40, 40, 205), "green": (60, 165, 35), "blue": (185, 75, 20), "yellow": (40, 195, 215),
               "magenta": (175, 50, 185), "cyan": (195, 185, 35)}
-#: the paper's names of the models whose gaits are run
-DEFAULT_LABELS = {"ef": "EF", "lstm": "FED-LSTM"}
+#: the paper's names of the models whose gaits are run (``lstmNN``: the FED-LSTM on NN-tick windows)
+DEFAULT_LABELS = {"ef": "EF", "lstm": "FED-LSTM", "lstm16": "FED-LSTM-16"}
+
+
+def model_display_label(model: str, labels: Mapping[str, str] | None = None) -> str:
+    """The name a gait file's model gets in trials.toml and the scores.
+
+    ``labels`` (the ``model_labels`` setting) first, then :data:`DEFAULT_LABELS`, then
+    ``lstmNN`` -> ``FED-LSTM-NN`` (the FED-LSTM on NN-tick windows), else the name upper-cased.
+    """
+    import re
+
+    if labels and model in labels:
+        return str(labels[model])
+    if model in DEFAULT_LABELS:
+        return DEFAULT_LABELS[model]
+    m = re.fullmatch(r"lstm[-_]?(\d+)", model)
+    return f"FED-LSTM-{m.group(1)}" if m else model.upper()
 
 
 # --- settings -------------------------------------------------------------------------------------
@@ -709,7 +725,7 @@ def synthetic_trials(s: PoolSettings | None = None, seed: int | None = None) -> 
     rng = np.random.default_rng(s.seed if seed is None else seed)
     out = []
     for model in s.models:
-        label = s.model_labels.get(model, model.upper())
+        label = model_display_label(model, s.model_labels)
         for rank in range(1, s.best + 1):
             slow = model == "ef" and rank == 2
             t, x, y, yaw = straight_path(speed_mps=0.025 if slow else rng.uniform(0.08, 0.11),
@@ -787,7 +803,7 @@ def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None
                     f"residual {traj.residual_mps[i]:.2g} m/s, tolerance {settings.get('tol_mps', 1e-4):g}, "
                     f"{traj.iterations} leg-model calls)", path=path,
                     hint="its trajectory would be an artefact; see docs/hydro.md (simulation settings)")
-            label = s.model_labels.get(model, model.upper())
+            label = model_display_label(model, s.model_labels)
             made[(model, task, rank)] = PoolTrial(f"{model}-{task}-{rank}", task, label, rank, traj.t_s, traj.x_m[i],
                                                   traj.y_m[i], traj.yaw_rad[i], gait_hz=float(batch.frequency_hz[i]))
     # the order of the gait files (model, task, rank), whatever the grouping
@@ -824,6 +840,7 @@ EXAMPLES = """\
   workbench virtual-lab pool datasets/raw/demo-pool --gaits datasets/gaits --params pipelines/trials.yaml
   workbench virtual-lab pool /tmp/pool --synthetic --fps 15 --size 640x360
   workbench virtual-lab pool /tmp/pool --gaits datasets/gaits --models ef lstm --best 8
+  workbench virtual-lab pool /tmp/pool --gaits datasets/gaits --models ef lstm lstm16   # the 16-tick FED-LSTM too
   workbench score-trials /tmp/pool --out /tmp/pool-scores     # then compare with /tmp/pool/truth.json
 """
 
@@ -842,7 +859,10 @@ def add_cli(subparsers) -> None:
     p.add_argument("--gaits", type=Path, default=None, help="folder of <task>-<model>.json gait files")
     p.add_argument("--synthetic", action="store_true", help="render built-in synthetic trajectories instead")
     p.add_argument("--params", type=Path, default=None, help="YAML with a 'pool' section (pipelines/trials.yaml)")
-    p.add_argument("--models", nargs="+", default=None, help="model names of the gait files (default: ef lstm)")
+    p.add_argument("--models", nargs="+", default=None,
+                   help="model names of the gait files <task>-<model>.json, any number (default: the file's pool.models, "
+                        "else ef lstm); trials are labelled by pool.model_labels, else ef EF, lstm FED-LSTM, "
+                        "lstm16 FED-LSTM-16 (lstmNN: FED-LSTM-NN)")
     p.add_argument("--best", type=int, default=None, help="render the best N retained gaits per model and task")
     p.add_argument("--fps", type=float, default=None, help="video frame rate")
     p.add_argument("--size", default=None, help="video size WxH, e.g. 960x540")
