@@ -78,6 +78,7 @@ def run(args) -> int:
     s = metrics["summary"]
     import torch
 
+    info(f"stopped: {s['stop_detail']}")
     info(f"best epoch {s['best_epoch']}/{s['epochs']}: val loss {s['best_val_loss']:.4f}; "
          f"{s['train_windows_per_s']:,.0f} training windows/s on {torch.get_num_threads()} torch thread(s)")
     if "test" in metrics:

@@ -131,15 +131,29 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
             max_time=timedelta(seconds=cfg.trainer.max_time_s) if cfg.trainer.max_time_s else None,
         )
         t_fit = time.perf_counter()
-        trainer.fit(module, datamodule=dm)
+        try:
+            trainer.fit(module, datamodule=dm)
+        except SystemExit:
+            # Lightning turns Ctrl-C (and SIGTERM under workbench.procs) into sys.exit(1) after its
+            # own shutdown: give callers their KeyboardInterrupt back (Optuna fails the trial, the
+            # MLflow run ends KILLED, the CLI says "interrupted")
+            if trainer.interrupted:
+                raise KeyboardInterrupt("training interrupted") from None
+            raise
         fit_s = time.perf_counter() - t_fit
         best.restore(module)
+        stop = stop_reason(trainer, cfg, len(log.history))
+        if run is not None:
+            import mlflow
+
+            mlflow.set_tags({"stop_reason": stop["reason"], "stop_detail": stop["detail"]})
         info = {"campaigns": campaigns, "git_commit": tags["git_commit"], "best_epoch": best.best_epoch,
                 "trained_windows_per_epoch": dm.windows_per_epoch(), **({"run_id": run.info.run_id} if run else {})}
         model = LearnedLegModel(net, model=cfg.model, seq_len=cfg.data.seq_len, dt_s=prepared.dt_s, norm=prepared.norm,
                                 info=info)
         wps = [h["windows_per_s"] for h in log.history if h["windows_per_s"] == h["windows_per_s"]]
-        metrics.update({"best_val_loss": best.best, "best_epoch": best.best_epoch, "epochs": len(log.history),
+        metrics.update({"stop_reason": stop["reason"], "stop_detail": stop["detail"],
+                        "best_val_loss": best.best, "best_epoch": best.best_epoch, "epochs": len(log.history),
                         "fit_s": fit_s, "total_s": time.perf_counter() - t_start,
                         "train_windows_per_s": sorted(wps)[len(wps) // 2] if wps else float("nan")})
         test_runs = prepared.runs("test") if score_test else []
@@ -175,9 +189,36 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
     return metrics, objects
 
 
+def stop_reason(trainer, cfg: LearnConfig, epochs: int) -> dict:
+    """Why training stopped: ``max_epochs``, ``early_stopping`` (patience) or ``time_cap`` (``max_time_s``).
+
+    Returns ``{"reason", "detail"}``; the detail is the sentence shown and recorded, e.g.
+    ``time cap max_time_s=30 reached after epoch 2 of max_epochs=4``.
+    """
+    from lightning.pytorch.callbacks import EarlyStopping, Timer
+
+    max_epochs = cfg.trainer.max_epochs
+    for cb in trainer.callbacks:
+        if isinstance(cb, EarlyStopping) and cb.stopped_epoch > 0:
+            return {"reason": "early_stopping",
+                    "detail": f"early stopping: val_loss did not improve for {cb.patience} epoch(s) "
+                              f"(patience), after epoch {epochs} of max_epochs={max_epochs}"}
+    for cb in trainer.callbacks:
+        if isinstance(cb, Timer) and cb._duration is not None and cb.time_elapsed() >= cb._duration:
+            if epochs < max_epochs:
+                return {"reason": "time_cap",
+                        "detail": f"time cap max_time_s={cfg.trainer.max_time_s:g} reached after epoch {epochs} "
+                                  f"of max_epochs={max_epochs}"}
+    if epochs >= max_epochs:
+        return {"reason": "max_epochs", "detail": f"max_epochs={max_epochs} reached"}
+    return {"reason": "other", "detail": f"stopped after epoch {epochs} of max_epochs={max_epochs} "
+                                         "(a callback asked to stop)"}
+
+
 def _summary(metrics: dict) -> dict:
     """The flat, JSON-friendly summary: what metrics.json holds and MLflow logs."""
-    out = {k: metrics[k] for k in ("best_val_loss", "best_epoch", "epochs", "fit_s", "train_windows_per_s")}
+    out = {k: metrics[k] for k in ("stop_reason", "stop_detail", "best_val_loss", "best_epoch", "epochs", "fit_s",
+                                   "train_windows_per_s")}
     if "test" in metrics:
         lstm, ef = metrics["test"]["lstm"], metrics["test"]["ef"]
         out["test_nmse"] = metrics["test_nmse"]
