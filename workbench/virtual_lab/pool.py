@@ -630,10 +630,9 @@ def _render_all(tmp: Path, jobs: list[dict], s: PoolSettings, cam: TiltedCamera,
                                scene=scene, duration_s=job["duration_s"], gait_hz=job["gait_hz"],
                                occlusions=job["occlusions"], markers=job["markers"], seed=job["seed"])
         return
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from workbench.procs import process_pool  # workers die with this process; Ctrl-C ends them at once
 
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+    with process_pool(workers) as ex:
         yield from ex.map(_render_job, [(str(tmp), job, s, cam) for job in jobs])
 
 
