@@ -26,6 +26,7 @@ from workbench.contract.columns import (
     TUNNEL_MOTION_PARAMS,
     TUNNEL_OPTIONAL_DEFAULTS,
 )
+from workbench.contract.limits import DEFAULT_LIMITS, Limits, manifest_faults
 from workbench.errors import ContractError
 
 _RUN_FILE_KEYS = ("loadcell", "motion", "carriage", "mcap")
@@ -219,12 +220,21 @@ def _parse_run(i: int, t: Any, root: Path, facility: str, col: _Collector) -> Ru
     if cycles is not None and (not isinstance(cycles, int) or isinstance(cycles, bool) or cycles <= 0):
         col.add("cycles must be a positive integer", run=rid, where="field cycles")
         cycles = None
+    elif cycles is not None and cycles > 2**31 - 1:  # the processed column is int32
+        col.add(f"cycles = {cycles} is too large (at most {2**31 - 1}); a typo?", run=rid, where="field cycles",
+                hint="give the number of motion cycles the run recorded")
+        cycles = None
     return RunSpec(id=rid, flow_speed_mps=speed, params=MappingProxyType(params), heading=heading,
                    cycles=cycles, **files)
 
 
-def check_manifest(root: str | Path) -> tuple[Campaign | None, list[ContractError]]:
-    """Parse ``root/campaign.toml``; return the campaign (None if unusable) and every violation found."""
+def check_manifest(root: str | Path, limits: Limits | None = DEFAULT_LIMITS
+                   ) -> tuple[Campaign | None, list[ContractError]]:
+    """Parse ``root/campaign.toml``; return the campaign (None if unusable) and every violation found.
+
+    Values outside the rig's ranges (:mod:`workbench.contract.limits`; ``limits=None`` skips them)
+    count as violations too. A UTF-8 byte-order mark (spreadsheet and Windows editors) is accepted.
+    """
     root = Path(root)
     manifest = root / "campaign.toml"
     col = _Collector(manifest)
@@ -233,9 +243,13 @@ def check_manifest(root: str | Path) -> tuple[Campaign | None, list[ContractErro
     if not manifest.is_file():
         return None, [ContractError("missing campaign.toml", path=root)]
     try:
-        doc = tomllib.loads(manifest.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        return None, [ContractError(f"not valid TOML: {exc}", path=manifest)]
+        doc = tomllib.loads(manifest.read_text(encoding="utf-8-sig"))
+    except UnicodeDecodeError as exc:
+        return None, [ContractError(f"not UTF-8 text (byte {exc.start})", path=manifest,
+                                    hint="save campaign.toml as UTF-8")]
+    except tomllib.TOMLDecodeError as exc:
+        return None, [ContractError(f"not valid TOML: {exc}", path=manifest,
+                                    hint="see the campaign.toml example in docs/campaigns.md")]
     schema = doc.get("schema")
     if schema != CAMPAIGN_SCHEMA:
         col.add(f"unknown schema version {schema!r}", where="field schema",
@@ -287,6 +301,8 @@ def check_manifest(root: str | Path) -> tuple[Campaign | None, list[ContractErro
     camp = Campaign(root=root, id=cid, facility=facility, date=date,
                     description=str(doc.get("description", "")), loadcell=loadcell,
                     motion=motion, runs=tuple(runs))
+    if limits is not None:
+        col.errors.extend(manifest_faults(camp, limits))
     return camp, col.errors
 
 
@@ -298,13 +314,13 @@ def run_errors(errors: list[ContractError]) -> dict[str | None, list[ContractErr
     return out
 
 
-def load_campaign(root: str | Path) -> Campaign:
+def load_campaign(root: str | Path, limits: Limits | None = DEFAULT_LIMITS) -> Campaign:
     """Parse a campaign folder's manifest or raise its first campaign-level violation.
 
     Run-level violations do not raise here: they are returned by :func:`check_manifest`
     and handled per run by ingest (refuse the campaign, or skip bad runs).
     """
-    camp, errors = check_manifest(root)
+    camp, errors = check_manifest(root, limits)
     campaign_level = [e for e in errors if e.run is None]
     if camp is None or campaign_level:
         raise (campaign_level or errors)[0]

@@ -276,7 +276,7 @@ def check_trials(root: str | Path) -> tuple[TrialsFolder | None, list[ContractEr
     if not manifest.is_file():
         return None, [ContractError("missing trials.toml", path=root)], {}
     try:
-        doc = tomllib.loads(manifest.read_text(encoding="utf-8"))
+        doc = tomllib.loads(manifest.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         return None, [ContractError(f"not valid TOML: {exc}", path=manifest)], {}
     schema = doc.get("schema")

@@ -48,7 +48,7 @@ def up_to_date(campaign_dir: str | Path, out: str | Path, params: IngestParams |
     out = Path(out)
     if not out.is_file():
         return False
-    camp, errors = check_manifest(campaign_dir)
+    camp, errors = check_manifest(campaign_dir, as_params(params).limits)
     if camp is None or any(e.run is None for e in errors):
         return False
     return is_up_to_date(out, campaign_hashes(camp), as_params(params).recorded(), skip_bad_runs)

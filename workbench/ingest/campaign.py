@@ -15,6 +15,7 @@ from typing import Any, Callable, Mapping
 import polars as pl
 
 from workbench.contract.campaign import Campaign, check_manifest
+from workbench.contract.limits import Limits
 from workbench.errors import CampaignRefused, ContractError, WorkbenchError
 from workbench.ingest.params import IngestParams
 from workbench.ingest.provenance import campaign_hashes
@@ -42,9 +43,13 @@ def as_params(params: IngestParams | Mapping[str, Any] | None) -> IngestParams:
     return IngestParams.from_mapping(params)
 
 
-def load_manifest(campaign_dir: str | Path) -> tuple[Campaign, dict[str, list[ContractError]]]:
-    """Parse campaign.toml; raise on campaign-level violations, return run-level ones by run id."""
-    camp, errors = check_manifest(campaign_dir)
+def load_manifest(campaign_dir: str | Path, limits: Limits | None = None
+                  ) -> tuple[Campaign, dict[str, list[ContractError]]]:
+    """Parse campaign.toml; raise on campaign-level violations, return run-level ones by run id.
+
+    Values outside ``limits`` (the rig's ranges; default :class:`Limits`) are violations.
+    """
+    camp, errors = check_manifest(campaign_dir, limits or Limits())
     campaign_level = [e for e in errors if e.run is None]
     if camp is None or campaign_level:
         raise (campaign_level or errors)[0]
@@ -117,7 +122,7 @@ def ingest_campaign(campaign_dir: str | Path, *, params: IngestParams | Mapping[
     ``progress`` is called with 1 after each run (a progress bar's advance).
     """
     params = as_params(params)
-    campaign, manifest_errors = load_manifest(campaign_dir)
+    campaign, manifest_errors = load_manifest(campaign_dir, params.limits)
     bad: list[WorkbenchError] = [errs[0] for errs in manifest_errors.values()]
     runs = [r for r in campaign.runs if r.id not in manifest_errors]
     outputs: list[RunOutput] = []

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping
 
+from workbench.contract.limits import Limits
 from workbench.errors import ContractError
 
 
@@ -37,6 +38,9 @@ class IngestParams:
     saturation_fraction: float = 0.999
     #: worker threads over runs (0: automatic, at most 2); does not change the result
     workers: int = 0
+    #: the rig's plausible ranges (workbench.contract.limits); a YAML mapping ``limits: {...}``
+    #: overrides single bounds. Not recorded: it decides what is refused, never how data is processed
+    limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self):
         problems = []
@@ -54,6 +58,8 @@ class IngestParams:
             problems.append("max_nan_run, max_rest_s and workers must not be negative")
         if problems:
             raise ContractError("; ".join(problems), where="ingest parameters")
+        if not isinstance(self.limits, Limits):
+            object.__setattr__(self, "limits", Limits.from_mapping(self.limits))
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any] | None) -> "IngestParams":
@@ -70,4 +76,5 @@ class IngestParams:
         """The parameters that shape the result (what the file metadata records and compares)."""
         d = asdict(self)
         d.pop("workers")
+        d.pop("limits")
         return d

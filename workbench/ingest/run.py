@@ -87,7 +87,7 @@ def angle_source(campaign: Campaign) -> str:
 def process_run(campaign: Campaign, run: RunSpec, params: IngestParams) -> RunOutput:
     """Turn one run's raw files into processed rows on the controller's ticks."""
     streams = read_run(campaign, run)
-    streams = {role: check_stream(s, params, run.id) for role, s in streams.items()}
+    streams = {role: check_stream(s, params, run.id, campaign.loadcell.full_scale) for role, s in streams.items()}
     lc = streams["loadcell"]
     ctrl = streams["motion" if campaign.is_tunnel else "carriage"]
     fit = align_clock(ctrl.time_s, ctrl.sync, lc.time_s, lc.sync, path=lc.path, run=run.id,

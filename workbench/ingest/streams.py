@@ -49,9 +49,13 @@ def csv_line(i: int) -> str:
     return f"line {i + 2}"
 
 
-def check_stream(s: Stream, params: IngestParams, run: str | None) -> Stream:
+def check_stream(s: Stream, params: IngestParams, run: str | None,
+                 full_scale: tuple[float, ...] | None = None) -> Stream:
     """Apply the shared rules; return the stream with short NaN runs bridged.
 
+    Infinite cells and cells beyond the rig's ranges (``params.limits``: a load-cell cell beyond
+    ``full_scale_factor`` x ``full_scale``, an angle beyond ``angle_deg_max``, ...) are refused: they are
+    not readings, and bridging them (as NaN gaps are) would hide a broken file.
     Raises :class:`DataError` or :class:`ContractError` naming the file, the run and where.
     """
     def fail(cls, fault, i=None, hint=None):
@@ -82,6 +86,8 @@ def check_stream(s: Stream, params: IngestParams, run: str | None) -> Stream:
     if (d > limit).any():
         i = int(np.argmax(d > limit))
         fail(DataError, f"gap of {d[i]:.3f} s in time_s after {s.time_s[i]:.6f} (limit {limit:.3f} s)", i + 1)
+    for name, x in s.values.items():
+        _check_cells(name, np.asarray(x, float), params.limits, full_scale, fail)
     values, filled = {}, 0
     for name, x in s.values.items():
         x, k = _bridge_nans(x, params.max_nan_run, lambda a, b, name=name: fail(
@@ -89,6 +95,32 @@ def check_stream(s: Stream, params: IngestParams, run: str | None) -> Stream:
         values[name] = x
         filled += k
     return replace(s, values=values, nan_filled=s.nan_filled + filled, sync=sync.astype(np.int8))
+
+
+def _check_cells(name: str, x: np.ndarray, limits, full_scale, fail) -> None:
+    inf = np.isinf(x)
+    if inf.any():
+        i = int(np.argmax(inf))
+        fail(DataError, f"infinite value {float(x[i])} in column {name}", i,
+             "not a reading: fix or re-export the file (an empty cell is read as missing and bridged)")
+    top = limits.cell_limit(name, full_scale)
+    if top is None:
+        return
+    with np.errstate(invalid="ignore"):
+        beyond = np.abs(x) > top
+    if beyond.any():
+        i = int(np.argmax(beyond))
+        which = (f"{limits.full_scale_factor:g} x the load cell's full scale" if full_scale is not None
+                 and name in _WRENCH else "the rig's range")
+        key = ("full_scale_factor" if full_scale is not None and name in _WRENCH else
+               "force_abs_max_n" if name.endswith("_n") else "torque_abs_max_nm" if name.endswith("_nm")
+               else "angle_deg_max" if name.endswith("_deg") else "carriage_position_abs_m_max")
+        fail(DataError, f"{name} = {x[i]:g} is beyond {which} ({top:g}; {int(beyond.sum())} such cell(s))", i,
+             f"a corrupt cell or a wrong unit: fix the file, or raise ingest.limits.{key} in pipelines/ingest.yaml "
+             f"if the rig really reads that")
+
+
+_WRENCH = ("fx_n", "fy_n", "fz_n", "tx_nm", "ty_nm", "tz_nm")
 
 
 def _bridge_nans(x: np.ndarray, max_run: int, fail) -> tuple[np.ndarray, int]:

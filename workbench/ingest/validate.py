@@ -68,7 +68,7 @@ def validate_run(campaign: Campaign, run: RunSpec, params: IngestParams,
             continue  # the manifest check has reported it
         try:
             for s in make_reader(path, role, spec).read().values():
-                check_stream(s, params, run.id)
+                check_stream(s, params, run.id, campaign.loadcell.full_scale)
         except WorkbenchError as exc:
             errors.append(exc)
     if not errors and first is not None:
@@ -80,7 +80,7 @@ def validate_campaign(campaign_dir: str | Path, params: IngestParams | None = No
                       progress: Callable[[int], None] | None = None) -> Validation:
     """Check the manifest and every run's files; collect all violations and saturation warnings."""
     params = params or IngestParams()
-    camp, manifest_errors = check_manifest(campaign_dir)
+    camp, manifest_errors = check_manifest(campaign_dir, params.limits)
     result = Validation(campaign=camp, errors=list(manifest_errors))
     if camp is None or any(e.run is None and "schema" in (e.where or "") for e in manifest_errors):
         return result

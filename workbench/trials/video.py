@@ -37,6 +37,8 @@ def _open(path: Path):
 
     if not path.is_file():
         raise DataError("video file not found", path=path)
+    if path.stat().st_size == 0:
+        raise DataError("empty file (0 bytes)", path=path, hint="copy the video again from the camera")
     cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         cap.release()
