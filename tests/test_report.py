@@ -36,7 +36,9 @@ def test_report_ties_results_together(tmp_path):
     assert "| 0.10 | 0.250 | 0.250 | 0.250 |" in md
     assert "added_mass_error" in md and "delta_kg=-0.070" in md
     assert "4.10 Hz" in md
-    assert "| straight | ef | 1 | -12.5 | -33.0 | 0.610 |" in md
+    assert "| EF | 1 | -12.5 | -33.0 | 0.610 |" in md
+    # objectives named per task, with units
+    assert "-Y impulse f1 (N s)" in md and "time to 2 m f3 (s)" in md and "path length f1" not in md
     assert "No trial scores yet." in md and "No drag fit yet." in md
 
 
@@ -154,3 +156,42 @@ def test_pool_verdict_when_no_turn_finishes(tmp_path):
     assert "neither model's gaits finished the task within 60 s" in text
     assert "mean yaw torque cancels" in text
     assert "FED-LSTM predicted its gaits to finish in 45.0 s" in text and "EF predicted its gaits" not in text
+
+
+def test_report_for_a_reader_tables_captions_and_unfinished_trials(tmp_path):
+    ds = tmp_path / "datasets"
+    # LSTM gaits 20 s / 22 s predicted; in the pool one finished in 50 s, one did not (60 s cap)
+    _pool_results(ds, 60.0, [20.0, 22.0], [40.0, 44.0], [50.0, 60.0], [41.0, 45.0])
+    for sub in ("gaits/turn-ef", "gaits/turn-lstm", "scores/pool/plots"):
+        (ds / sub).mkdir(parents=True, exist_ok=True)
+    for f in ("gaits/turn-ef/trajectories.png", "gaits/turn-lstm/trajectories.png", "scores/pool/plots/boxplots.png"):
+        (ds / f).write_bytes(b"png")
+    md = report.render_markdown(report.collect(ds, with_mlflow=False), tmp_path / "out")
+    # an unfinished trial is not shown as a 60 s time
+    assert "| turn | FED-LSTM | 2 | not finished within 60 s |" in md
+    assert "| turn | FED-LSTM | 1 | 50.0 |" in md
+    # the pool comparison is a table of the report, not a pasted markdown page with its own title
+    assert "# Open-water trials:" not in md
+    # captions say what a figure shows (and two figures of the same name differ by task and model)
+    assert "Simulated 60 s paths of the retained gaits, start at the origin (turn task, EF)" in md
+    assert "Simulated 60 s paths of the retained gaits, start at the origin (turn task, FED-LSTM)" in md
+    assert "![trajectories]" not in md
+    html = report.render_html(report.collect(ds, with_mlflow=False), tmp_path / "out")
+    assert "<figcaption>Pool-trial scores per model and task" in html
+    assert "turn task" in report.caption(ds / "gaits/turn-ef/pareto.png")
+
+
+def test_unfinished_trials_are_drawn_apart_in_the_pool_boxplots(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import polars as pl
+
+    from workbench.trials.plots import plot_boxplots
+
+    scores = pl.DataFrame({"trial_id": ["a", "b", "c", "d"], "model": ["EF", "EF", "FED-LSTM", "FED-LSTM"],
+                           "solution": [1, 2, 1, 2], "task": ["turn"] * 4, "time_s": [41.0, 60.0, 60.0, 60.0],
+                           "mae_x_m": [None] * 4, "radius_m": [0.1, 0.2, 0.15, 0.12],
+                           "completed": [True, False, False, False]})
+    out = plot_boxplots(scores, tmp_path / "box.png", baseline="EF")
+    assert out.stat().st_size > 10_000

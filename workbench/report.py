@@ -29,8 +29,51 @@ class Section:
     paragraphs: list[str] = field(default_factory=list)
     #: tables as (caption, header, rows)
     tables: list[tuple[str, list[str], list[list[str]]]] = field(default_factory=list)
-    figures: list[Path] = field(default_factory=list)
+    #: figures as paths (captioned by :func:`caption`) or (path, caption)
+    figures: list[Path | tuple[Path, str]] = field(default_factory=list)
     links: list[tuple[str, str]] = field(default_factory=list)
+
+
+#: what each stage's figure shows, by file name; "{what}" is filled from the folder (task and model)
+FIGURE_CAPTIONS = {
+    "drag.png": "Towing-tank drag force against towing speed with the quadratic fit and its residuals ({what})",
+    "hypervolume.png": "Hypervolume of the Pareto front after each NSGA-II generation ({what}; higher is better)",
+    "pareto.png": "Final Pareto front of the three objectives, retained gaits marked ({what})",
+    "trajectories.png": "Simulated 60 s paths of the retained gaits, start at the origin ({what})",
+    "mse_boxplot.png": "Held-out MSE per run, EF against the learned model, per channel (N^2 for forces, "
+                       "(N m)^2 for torques; log scale)",
+    "prediction_a.png": "Measured and predicted wrench over the last cycles of a held-out run (the paper's Fig. 4 set a)",
+    "prediction_b.png": "Measured and predicted wrench over the last cycles of a held-out run (the paper's Fig. 4 set b)",
+    "sensitivity.png": "Total Sobol indices of the estimated robot constants for each retained gait's score and "
+                       "for the ranking ({what})",
+    "boxplots.png": "Pool-trial scores per model and task (unfinished trials drawn apart, not as 60 s times)",
+    "learning_curve.png": "Training and validation loss per epoch ({what})",
+}
+
+
+def _what(path: Path) -> str:
+    """A figure's subject from its folder name: ``straight-lstm`` -> ``straight task, FED-LSTM``."""
+    name = path.parent.name
+    if name in ("plots",):
+        name = path.parent.parent.name
+    task, _, model = name.partition("-")
+    if task in ("straight", "turn") and model:
+        return f"{task} task, {MODEL_LABELS.get(model, model)}"
+    return name
+
+
+def caption(path: Path) -> str:
+    """The caption of a stage figure: what it shows, not its file name."""
+    if path.parent.name == "plots" and path.name == "trajectories.png":
+        return f"Pool trajectories scored from the overhead videos, per model and task ({path.parent.parent.name})"
+    text = FIGURE_CAPTIONS.get(path.name)
+    if text is None:
+        return path.stem.replace("_", " ").capitalize() + f" ({_what(path)})"
+    return text.format(what=_what(path))
+
+
+def _figure(f: Path | tuple[Path, str]) -> tuple[Path, str]:
+    return (f[0], f[1]) if isinstance(f, tuple) else (f, caption(f))
 
 
 def _load_json(path: Path) -> Any | None:
@@ -122,14 +165,21 @@ def leg_models_section(datasets: Path) -> Section:
                                       for ch in ("fy_n", "fz_n", "tx_nm")])
         sec.tables.append(("LSTM MSE / EF MSE by flow speed (target <= 0.5)", ["flow (m/s)", "fy_n", "fz_n", "tx_nm"],
                            ratio_rows))
-    sec.figures += _pngs(datasets / "metrics")
+    sec.figures += _pngs(datasets / "metrics") + _pngs(datasets / "reports" / "leg_models")
     return sec
 
 
+#: the optimiser's objectives per task: (name, unit) of f1, f2, f3 (docs/gaits.md; lower is better)
+OBJECTIVES = {
+    "straight": (("-Y impulse f1", "N s"), ("heading error f2", "rad"), ("time to 2 m f3", "s")),
+    "turn": (("path length f1", "m"), ("yaw short of 360 deg f2", "rad"), ("time to 360 deg f3", "s")),
+}
+
+
 def gaits_section(datasets: Path) -> Section:
-    """Best retained gait of each task and model, and the optimisation plots."""
+    """Best retained gait of each task and model, objectives named per task, and the optimisation plots."""
     sec = Section("Optimised gaits (NSGA-II)")
-    rows = []
+    by_task: dict[str, list[list[str]]] = {}
     for gj in sorted((datasets / "gaits").glob("*.json")):
         doc = _load_json(gj)
         if not isinstance(doc, dict) or "solutions" not in doc or not doc["solutions"]:
@@ -137,28 +187,76 @@ def gaits_section(datasets: Path) -> Section:
         best = doc["solutions"][0]
         p, o = best.get("params", {}), best.get("objectives", {})
         alpha = p.get("alpha_rad", [])
-        rows.append([doc.get("task", "?"), doc.get("model", "?"), str(len(doc["solutions"])),
-                     _fmt(p.get("theta_h_min_deg"), 1), _fmt(p.get("theta_k_max_deg"), 1), _fmt(p.get("frequency_hz"), 3),
-                     ", ".join(_fmt(a, 2) for a in alpha), _fmt(o.get("f1")), _fmt(o.get("f2")), _fmt(o.get("f3"), 2),
-                     _fmt(best.get("score"))])
-    if rows:
-        sec.tables.append(("Best solution per task and model (datasets/gaits/*.json)",
-                           ["task", "model", "retained", "theta_h_min (deg)", "theta_k_max (deg)", "f (Hz)",
-                            "alpha LF, RF, LH, RH (rad)", "f1", "f2", "f3 (s)", "S"], rows))
-    else:
+        cap = ((doc.get("settings") or {}).get("task") or {}).get("cap_s", 60.0)
+        f3 = o.get("f3")
+        f3_text = (_fmt(f3, 2) if not isinstance(f3, (int, float)) or f3 < float(cap) - 1e-9
+                   else f"not finished within {float(cap):g} s")
+        unconv = doc.get("unconverged_gaits")
+        by_task.setdefault(doc.get("task", "?"), []).append(
+            [MODEL_LABELS.get(doc.get("model", "?"), doc.get("model", "?")), str(len(doc["solutions"])),
+             _fmt(p.get("theta_h_min_deg"), 1), _fmt(p.get("theta_k_max_deg"), 1), _fmt(p.get("frequency_hz"), 3),
+             ", ".join(_fmt(a, 2) for a in alpha), _fmt(o.get("f1")), _fmt(o.get("f2")), f3_text,
+             _fmt(best.get("score")), "-" if unconv is None else str(unconv)])
+    for task, rows in by_task.items():
+        names = OBJECTIVES.get(task, (("f1", ""), ("f2", ""), ("f3", "s")))
+        sec.tables.append((f"{task}: best gait of each model (datasets/gaits/{task}-*.json); S = w1 f1 + w2 f2 + w3 f3, "
+                           "lower is better",
+                           ["model", "gaits kept", "theta_h_min (deg)", "theta_k_max (deg)", "f (Hz)",
+                            "alpha LF, RF, LH, RH (rad)"] + [f"{n} ({u})" for n, u in names]
+                           + ["S", "unconverged gaits in search"], rows))
+    if not by_task:
         sec.paragraphs.append("No gaits yet.")
     sec.figures += _pngs(datasets / "gaits")
     return sec
 
 
+def _trial_table(scores_dir: Path) -> tuple[str, list[str], list[list[str]]] | None:
+    """Scored trials as a table: unfinished trials say so instead of showing the 60 s cap as a time."""
+    rows = _read_scores(scores_dir)
+    if not rows:
+        return None
+    out = []
+    for r in sorted(rows, key=lambda r: (r.get("task", ""), r.get("model", ""), r.get("solution", ""))):
+        done = str(r.get("completed")).lower() == "true"
+        t = r.get("time_s") or ""
+        time_text = f"{float(t):.1f}" if done and t else "not finished within 60 s"
+        extra = (f"MAE(X) {float(r['mae_x_m']):.3f} m" if r.get("mae_x_m") else
+                 f"radius {float(r['radius_m']):.3f} m" if r.get("radius_m") else "-")
+        out.append([r.get("task", "?"), r.get("model", "?"), r.get("solution", "?"), time_text, extra])
+    return (f"{scores_dir.name}: every scored trial (T: time to 2 m or to 360 deg, s; MAE(X): mean lateral "
+            "deviation on the straight; radius: turn radius)", ["task", "model", "gait rank", "T (s)", "path"], out)
+
+
+SCORE_NAMES = {"time_s": "T (s)", "mae_x_m": "MAE(X) (m)", "radius_m": "turn radius (m)"}
+
+
+def _improvement_table(summary: dict) -> tuple[str, list[str], list[list[str]]] | None:
+    comp = (summary.get("comparison") or {}).get("models") or {}
+    rows = []
+    for model, tasks in comp.items():
+        for task, stats in tasks.items():
+            for agg in ("best", "mean", "median"):
+                for score, v in (stats.get(agg) or {}).items():
+                    if isinstance(v, dict) and "improvement" in v:
+                        base, mine = v.get(summary.get("comparison", {}).get("baseline", "EF")), v.get(model)
+                        unfinished = (score == "time_s" and isinstance(base, (int, float))
+                                      and isinstance(mine, (int, float)) and min(base, mine) >= 60.0 - 1e-9)
+                        rows.append([task, model, agg, SCORE_NAMES.get(score, score), _fmt(base), _fmt(mine),
+                                     "neither finished" if unfinished else f"{100 * float(v['improvement']):+.1f} %"])
+    if not rows:
+        return None
+    return ("Improvement over EF, (EF - model) / EF: positive is better (unfinished trials count as the 60 s cap)",
+            ["task", "model", "over", "score", "EF", "model", "improvement"], rows)
+
+
 def trials_section(datasets: Path) -> Section:
-    """Pool-trial scores per model and task, and the Table IV-style comparison."""
+    """Pool-trial scores per model and task, the improvement over the EF, and the verdict per task."""
     sec = Section("Open-water trials")
     for summary in sorted((datasets / "scores").glob("*/summary.json")):
-        comp = summary.parent / "comparison.md"
-        if comp.is_file():
-            sec.paragraphs.append(comp.read_text(encoding="utf-8"))
         doc = _load_json(summary) or {}
+        for table in (_trial_table(summary.parent), _improvement_table(doc)):
+            if table:
+                sec.tables.append(table)
         failed = doc.get("failed") or []
         if failed:
             sec.paragraphs.append(f"**Failed trials ({summary.parent.name}):** " +
@@ -166,7 +264,7 @@ def trials_section(datasets: Path) -> Section:
                                             else str(f) for f in failed))
         sec.paragraphs += pool_verdict(datasets, summary.parent)
         sec.figures += [p for p in _pngs(summary.parent) if "trajector" in p.name or "box" in p.name]
-    if not sec.paragraphs and not sec.figures:
+    if not sec.paragraphs and not sec.figures and not sec.tables:
         sec.paragraphs.append("No trial scores yet.")
     return sec
 
@@ -435,7 +533,8 @@ def render_markdown(sections: list[Section], out_dir: Path, title: str = "Workbe
             lines += ["| " + " | ".join(str(c).replace("|", "/") for c in r) + " |" for r in rows]
             lines.append("")
         for f in s.figures:
-            lines += [f"![{f.stem}]({_rel(f, out_dir)})", ""]
+            path, cap = _figure(f)
+            lines += [f"![{cap}]({_rel(path, out_dir)})", "", f"*Figure: {cap}.*", ""]
         for label, url in s.links:
             lines.append(f"- [{label}]({url})")
         if s.links:
@@ -469,8 +568,9 @@ def render_html(sections: list[Section], out_dir: Path, title: str = "Workbench 
             out += ["<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows]
             out.append("</table>")
         for f in s.figures:
-            out.append(f"<figure><img src='{html.escape(_rel(f, out_dir))}' alt='{html.escape(f.stem)}'>"
-                       f"<figcaption>{html.escape(f.name)}</figcaption></figure>")
+            path, cap = _figure(f)
+            out.append(f"<figure><img src='{html.escape(_rel(path, out_dir))}' alt='{html.escape(cap)}'>"
+                       f"<figcaption>{html.escape(cap)}</figcaption></figure>")
         if s.links:
             out.append("<ul>" + "".join(f"<li><a href='{html.escape(u)}'>{html.escape(lbl)}</a></li>"
                                         for lbl, u in s.links) + "</ul>")

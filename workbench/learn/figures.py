@@ -18,6 +18,9 @@ from workbench.contract.columns import WRENCH_CHANNELS
 COLOURS = {"measured": "#d62728", "ef": "#1f77b4", "lstm": "#2ca02c"}
 LABELS = {"fx_n": "$f_x$ (N)", "fy_n": "$f_y$ (N)", "fz_n": "$f_z$ (N)",
           "tx_nm": r"$\tau_x$ (N m)", "ty_nm": r"$\tau_y$ (N m)", "tz_nm": r"$\tau_z$ (N m)"}
+#: the squared units of each channel's MSE
+MSE_LABELS = {"fx_n": "$f_x$ (N$^2$)", "fy_n": "$f_y$ (N$^2$)", "fz_n": "$f_z$ (N$^2$)",
+              "tx_nm": r"$\tau_x$ (N$^2$ m$^2$)", "ty_nm": r"$\tau_y$ (N$^2$ m$^2$)", "tz_nm": r"$\tau_z$ (N$^2$ m$^2$)"}
 
 
 def _figure(w: float, h: float):
@@ -90,7 +93,7 @@ def mse_boxplot(metrics: Mapping[str, Mapping], channels: Sequence[str] = ("fy_n
         ax.set_xticks(np.arange(len(speeds)), [f"{s:.2f}" for s in speeds])
         ax.set_yscale("log")
         ax.set_xlabel("flow speed (m/s)")
-        ax.set_title(f"MSE of {LABELS[ch]}", fontsize=10)
+        ax.set_title(f"MSE of {MSE_LABELS[ch]}", fontsize=10)
     axes[0].set_ylabel("per-run MSE")
     axes[0].legend(fontsize=8)
     return fig
