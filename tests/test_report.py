@@ -51,10 +51,14 @@ def test_report_verb_writes_html_and_markdown(tmp_path):
     assert page.startswith("<!doctype html>") and "added_mass_error" in page and "<script" not in page
     assert (out / "report.md").is_file()
     head = json.loads((out / "headline.json").read_text())
-    assert head["leg_models"]["lstm_over_ef_mse"]["fz_n"] == 0.25  # 0.01 / 0.04
-    assert head["gaits_best_score"] == {"straight-ef": 34.98}
-    assert head["diagnosis"]["demo-tunnel-ef"]["effects"] == 1
-    assert "drag" not in head and "trials_mean_improvement" not in head  # results not there are left out
+    assert head["lstm_over_ef_mse"]["fz"] == 0.25  # 0.01 / 0.04
+    assert head["best_S"] == {"straight-ef": 34.98}
+    assert head["diagnosis"]["effects"] == 1
+    assert "drag_c2" not in head and "pool_time_s" not in head  # results not there are left out
+    # people-sized: results only, no paths or timings, at most a few dozen numbers
+    flat = json.dumps(head)
+    assert "/" not in flat.replace("straight-ef", "") and "seconds" not in flat
+    assert sum(len(v) if isinstance(v, dict) else 1 for v in head.values()) <= 40
 
 
 def test_mlflow_links_cover_every_pipeline_experiment_in_flow_order(tmp_path):

@@ -473,47 +473,60 @@ def collect(datasets: Path, tracking_uri: str | None = None, ui_url: str = "http
     return secs
 
 
-def headline(datasets: Path) -> dict:
-    """The loop's key numbers in one small file, so ``dvc metrics show/diff`` on it reads at a glance.
+#: channel short names in headline.json
+_SHORT = {"fx_n": "fx", "fy_n": "fy", "fz_n": "fz", "tx_nm": "tx", "ty_nm": "ty", "tz_nm": "tz"}
+_KEY_CHANNELS = ("fy_n", "fz_n", "tx_nm")
 
-    Each stage's own metrics file keeps everything; this picks what a researcher compares between
-    two runs of the loop: LSTM/EF held-out MSE ratios and R^2, the drag coefficients, the best
-    score per gait, pool-trial improvements of FED-LSTM over EF, and the diagnosis's error cut.
-    Missing results are left out, so the file is valid at any stage of a campaign.
+
+def headline(datasets: Path) -> dict:
+    """The loop's results in one small file, so ``dvc metrics show|diff`` and ``dvc exp show`` read at a glance.
+
+    Results only (no timings, no paths), short keys, a few numbers per step: the learned model's
+    held-out MSE over the EF's on the paper's three channels (and R^2), each gait file's best score
+    S, the pool's time per model and task (mean over the swum gaits; 60 = not finished) and how many
+    finished, the drag fit's quadratic coefficients, the diagnosis's held-out error cut, and the
+    tuning study's best validation loss. Each stage's own files keep everything. Missing results are
+    left out, so the file is valid at any stage of a campaign.
     """
     out: dict[str, Any] = {}
     doc = _load_json(datasets / "metrics" / "leg_models.json") or {}
     ef, lstm = doc.get("ef", {}), doc.get("lstm", {})
     if ef.get("mse") and lstm.get("mse"):
-        out["leg_models"] = {
-            "lstm_over_ef_mse": {ch: lstm["mse"][ch] / ef["mse"][ch] for ch in WRENCH_CHANNELS
-                                 if ef["mse"].get(ch) and ch in lstm["mse"]},
-            "r2": {m: {ch: d["r2"][ch] for ch in ("fy_n", "fz_n", "tx_nm") if ch in d.get("r2", {})}
-                   for m, d in (("ef", ef), ("lstm", lstm))}}
-    for dj in sorted((datasets / "drag").glob("*/drag.json")):
-        d = _load_json(dj) or {}
-        out.setdefault("drag", {})[dj.parent.name] = {
-            h: {"c2": d[h]["coefficients"][0], "c1": d[h]["coefficients"][1], "c0": d[h]["coefficients"][2],
-                "r2": d[h].get("r2")} for h in ("forward", "lateral") if isinstance(d.get(h), dict)}
+        out["lstm_over_ef_mse"] = {_SHORT[ch]: round(lstm["mse"][ch] / ef["mse"][ch], 4) for ch in _KEY_CHANNELS
+                                   if ef["mse"].get(ch) and ch in lstm["mse"]}
+        out["r2"] = {f"{m}_{_SHORT[ch]}": round(d["r2"][ch], 4) for m, d in (("ef", ef), ("lstm", lstm))
+                     for ch in _KEY_CHANNELS if ch in d.get("r2", {})}
     for gj in sorted((datasets / "gaits").glob("*.json")):
         d = _load_json(gj)
-        if isinstance(d, dict) and d.get("solutions"):
-            out.setdefault("gaits_best_score", {})[gj.stem] = d["solutions"][0].get("score")
+        if isinstance(d, dict) and d.get("solutions") and isinstance(d["solutions"][0].get("score"), (int, float)):
+            out.setdefault("best_S", {})[gj.stem] = round(d["solutions"][0]["score"], 3)
     for sj in sorted((datasets / "scores").glob("*/summary.json")):
-        comp = ((_load_json(sj) or {}).get("comparison") or {}).get("models", {})
-        for model, tasks in comp.items():
-            for task, stats in tasks.items():
-                out.setdefault("trials_mean_improvement", {}).setdefault(sj.parent.name, {})[f"{model}.{task}"] = {
-                    score: v["improvement"] for score, v in (stats.get("mean") or {}).items()
-                    if isinstance(v, dict) and "improvement" in v}
+        rows = _read_scores(sj.parent)
+        for r in rows:
+            key = f"{r.get('task')}_{r.get('model')}"
+            pool = out.setdefault("pool_time_s", {}).setdefault(key, [])
+            if r.get("time_s"):
+                pool.append(float(r["time_s"]))
+            out.setdefault("pool_finished", {}).setdefault(key, 0)
+            out["pool_finished"][key] += str(r.get("completed")).lower() == "true"
+    if "pool_time_s" in out:
+        out["pool_time_s"] = {k: round(sum(v) / len(v), 2) for k, v in out["pool_time_s"].items() if v}
+    for dj in sorted((datasets / "drag").glob("*/drag.json")):
+        d = _load_json(dj) or {}
+        for h in ("forward", "lateral"):
+            if isinstance(d.get(h), dict) and d[h].get("coefficients"):
+                out.setdefault("drag_c2", {})[h if dj.parent.name == "demo-towing" else f"{dj.parent.name}_{h}"] = (
+                    round(d[h]["coefficients"][0], 4))
     for dj in sorted((datasets / "diagnosis").glob("*/diagnosis.json")):
         d = _load_json(dj) or {}
-        out.setdefault("diagnosis", {})[dj.parent.name] = {
-            "effects": len(d.get("effects", [])), "unexplained": len(d.get("unexplained", [])),
-            "mse_relative_reduction": d.get("mse_relative_reduction", {})}
+        cut = d.get("mse_relative_reduction") or {}
+        prefix = "" if dj.parent.name == "demo-tunnel-ef" else f"{dj.parent.name}_"
+        diag = out.setdefault("diagnosis", {})
+        diag[f"{prefix}effects"] = len(d.get("effects", []))
+        diag.update({f"{prefix}cut_{_SHORT[ch]}": round(cut[ch], 4) for ch in _KEY_CHANNELS if ch in cut})
     best = (_load_json(datasets / "models" / "tune" / "best.json") or {}).get("best") or {}
-    if "value" in best:
-        out["tune_best_val_loss"] = best["value"]
+    if isinstance(best.get("value"), (int, float)):
+        out["tune_best_val_loss"] = round(best["value"], 5)
     return out
 
 

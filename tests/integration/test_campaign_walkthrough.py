@@ -200,17 +200,18 @@ def test_metrics_plots_and_experiments(project):
 
     metrics = json.loads(_run(["dvc", "metrics", "show", "--json"], project, stdout_only=True))
     files = {name for ws in metrics.values() for name in ws.get("data", {})}
-    for path in ("datasets/metrics/leg_models.json", "datasets/drag/demo-towing/drag.json",
-                 "datasets/scores/demo-pool/summary.json", "datasets/models/fed-lstm/metrics.json",
-                 "datasets/models/tune/best.json", f"datasets/processed/{NEW}.quality.json",
-                 "datasets/reports/headline.json"):
-        assert path in files, f"{path} not among dvc's metrics: {sorted(files)}"
+    # people-sized: the loop's results in one small file, not every stage's timings and paths
+    assert files == {"datasets/reports/headline.json"}, sorted(files)
+    head = json.loads((project / "datasets/reports/headline.json").read_text())
+    assert {"lstm_over_ef_mse", "best_S", "pool_time_s", "diagnosis"} <= set(head)
 
     _run(["dvc", "plots", "show", "-o", "plots-out"], project)
     html = (project / "plots-out" / "index.html").read_text()
     static = {p.name for p in (project / "plots-out").rglob("*.png")}
     assert "drag.png" in " ".join(static) and "boxplots.png" in " ".join(static), sorted(static)
     assert html.count("<img") >= 3
+    # learning curves and hypervolume histories are data plots (CSV), so `dvc plots diff` overlays runs
+    assert "learning_curve" in html and "hypervolume" in html
 
     # An experiment with one knob changed: only the gait stages and what follows them run again.
     out = _run(["dvc", "exp", "run", "-n", "more-generations", "-S", "pipelines/gait.yaml:optimize.nsga2.n_gen=3"],
@@ -221,3 +222,10 @@ def test_metrics_plots_and_experiments(project):
     header, *rows = list(csv.reader(io.StringIO(table.strip())))  # quoted values hold commas (lists)
     col = header.index("optimize.nsga2.n_gen")
     assert any(r[0] == "more-generations" and r[col] == "3" for r in rows), table
+    # what docs/pipeline.md shows fits a terminal: metrics diff (one row per changed number) and
+    # exp show with the documented flags
+    diff = _run(["dvc", "metrics", "diff", "HEAD", "more-generations"], project, stdout_only=True)
+    assert "best_S" in diff and max(len(line) for line in diff.splitlines()) <= 120, diff
+    shown = _run(["dvc", "exp", "show", "--only-changed", "--no-pager", "--drop", "Created|State|Executor"],
+                 project, stdout_only=True)
+    assert "n_gen" in shown and max(len(line) for line in shown.splitlines()) <= 240, shown
