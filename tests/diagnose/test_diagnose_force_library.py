@@ -12,11 +12,19 @@ import polars as pl
 import pytest
 
 from workbench.contract.columns import WRENCH_CHANNELS
-from workbench.diagnose.chain import Active, Configuration, Lowpass
+from workbench.diagnose.chain import Active, Configuration
 from workbench.diagnose.data import DataSettings, prepare
-from workbench.diagnose.effects_fluid import (AddedMassError, AddedMassKC, DragCoefficientError, LateralForce,
-                                              LinkInertia, LinkWeightBuoyancy, NormalForceLaw, RotatingAddedMass,
-                                              WagnerLag)
+from workbench.diagnose.effects.fluid import (
+    AddedMassError,
+    AddedMassKC,
+    DragCoefficientError,
+    LateralForce,
+    LinkInertia,
+    LinkWeightBuoyancy,
+    NormalForceLaw,
+    RotatingAddedMass,
+    WagnerLag,
+)
 from workbench.diagnose.problem import FitSettings, Problem
 from workbench.hydro.ef import EmpiricalFormula
 from workbench.hydro.kinematics import DEFAULT_GEOMETRY as G
@@ -72,7 +80,6 @@ def _planted(params, flow, t):
     v_n_body = np.einsum("ti,ti->t", -rel, nrm)
     dvn = d(v_n_body)
     a_n = np.einsum("ti,ti->t", a_q, nrm)
-    v_t = np.einsum("ti,ti->t", rel, tan)
     out = np.zeros((len(t), 6))
 
     def normal_at_q(f_n):

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from workbench.diagnose.library import Context, Effect
+from workbench.diagnose.effects.base import Context, Effect
 from workbench.hydro.kinematics import DEFAULT_GEOMETRY
 
 
@@ -128,19 +128,17 @@ def _add_flow_offset(ctx: Context, flow_offset: np.ndarray | None) -> None:
     ctx.wrench_at_flow = at  # type: ignore[method-assign]
 
 
-#: input effects a surrogate search may stand in for (and the parameter each has)
-_SURROGATE_INPUTS = {"servo_lag": "tau_s", "tunnel_blockage": "epsilon"}
-
-
 class SurrogateContext(Context):
     """A context whose model output comes from the plain motion's, for searches with an expensive model.
 
-    * servo lag tau: the plain output through the lag. ``M(lag(x)) = M(x) - tau dM/dt + O(tau^2)``
-      and so is ``lag(M(x))``: the two agree to first order in the lag for any causal
+    * an input effect that changes the motion's timing (a servo lag) acts on the plain output
+      through :meth:`~workbench.diagnose.effects.base.Effect.on_output`: ``M(lag(x)) = M(x) -
+      tau dM/dt + O(tau^2)`` and so is ``lag(M(x))``, to first order for any causal
       time-invariant model;
-    * tunnel blockage epsilon: the output at flow factor ``f = sqrt(1 + epsilon)`` by the
-      quadratic through the plain output at factors 1 - h, 1 and 1 + h (h = 0.05; exact for a
-      force quadratic in the flow, and those two runs are the flow sensitivity's anyway).
+    * one that scales the flow (tunnel blockage) gives its
+      :meth:`~workbench.diagnose.effects.base.Effect.flow_factor` ``f``: the output at ``f`` comes
+      from the quadratic through the plain output at factors 1 - h, 1 and 1 + h (h = 0.05; exact
+      for a force quadratic in the flow, and those two runs are the flow sensitivity's anyway).
 
     An expensive model (a windowed LSTM: 32 steps per tick) then runs a few times for a whole
     search. The force terms still see the transformed kinematics; the final refinement and
@@ -152,15 +150,14 @@ class SurrogateContext(Context):
     def __init__(self, rs, model, motion, geometry, plain: Context, inputs: list):
         super().__init__(rs, model, motion, geometry)
         self._plain = plain
-        self._taus = [a.nl["tau_s"] for a in inputs if a.name == "servo_lag"]
-        eps = [a.nl["epsilon"] for a in inputs if a.name == "tunnel_blockage"]
-        self._factor = float(np.sqrt(max(1.0 + eps[0], 1e-6))) if eps else 1.0
+        self._inputs = list(inputs)
+        self._factor = 1.0
+        for a in self._inputs:
+            self._factor *= a.effect.flow_factor(a.nl)
 
     def _lag(self, w: np.ndarray) -> np.ndarray:
-        from workbench.diagnose.effects_rig import lag_filter
-
-        for tau in self._taus:
-            w = lag_filter(w, tau, self.dt_s, axis=-2)
+        for a in self._inputs:
+            w = a.effect.on_output(w, self.dt_s, a.nl)
         return w
 
     def _at(self, factor: float) -> np.ndarray:
@@ -206,7 +203,7 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
     coefs = coefs or {}
     cache = {} if cache is None else cache
     inputs = config.stage("input")
-    surrogate = (surrogate and bool(inputs) and all(set(a.nl) == {_SURROGATE_INPUTS.get(a.name)} for a in inputs))
+    surrogate = surrogate and bool(inputs) and all(a.effect.surrogate_ok for a in inputs)
     in_key = _key(inputs)
     if surrogate:
         in_key = (("~lagged-output",),) + in_key
@@ -260,10 +257,7 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
         if okey not in cache:
             o = offset
             for a in config.stage("input"):
-                if "tau_s" in a.nl:
-                    from workbench.diagnose.effects_rig import lag_filter
-
-                    o = lag_filter(o, a.nl["tau_s"], ctx.dt_s, axis=-2)
+                o = a.effect.on_output(o, ctx.dt_s, a.nl)
             cache[okey] = o
         base += cache[okey]
     names, cols, sup, lnames, lcols = [], [], [], [], []

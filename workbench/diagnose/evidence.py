@@ -136,6 +136,23 @@ class Evidence:
         }
 
 
+# ------------------------------------------------------------------- clauses
+def ccf_clause(ev: Evidence, key: str, what: str) -> str:
+    """One clause: the residual's strongest cross-correlation with input ``key`` (empty when not computed)."""
+    c = ev.ccf.get(key)
+    if not c:
+        return ""
+    i = int(np.argmax(c["max_ratio"]))
+    return f"the residual correlates with {what} ({WRENCH_CHANNELS[i]}: {c['max_ratio'][i]:.1f}x its Bartlett bound)"
+
+
+def locked_clause(ev: Evidence) -> str:
+    """One clause: the share of the worst channel's residual that repeats every stroke."""
+    ch = list(WRENCH_CHANNELS)
+    locked = max(ch, key=lambda k: ev.locked_share[k])
+    return f"{ev.locked_share[locked]:.0%} of the {locked} residual repeats every stroke"
+
+
 # ------------------------------------------------------------------------ pieces
 #: harmonics of the gait in the stroke-locked part (a stroke's misfit lives in its first few)
 MAX_HARMONICS = 12

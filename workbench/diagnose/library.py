@@ -1,282 +1,174 @@
-"""Candidate effects as composable feature libraries (after pysindy's feature libraries).
+"""The effect table: every candidate effect by canonical name, from the package and its plug-ins.
 
-An :class:`Effect` is one physical mechanism the diagnosed model may lack, with the canonical
-name and parameters of the effect table (docs/diagnose.md). It acts at one *stage* of the
-chain from commanded motion to load-cell reading:
+Effects are classes (:class:`~workbench.diagnose.effects.base.Effect`). They come from three
+places, read here and nowhere else:
 
-``input``   changes the motion the model sees (servo lag);
-``force``   adds fluid or gravity loads: linear terms ``param * column`` computed from the
-            kinematics, a fixed term (circulatory lag), or per-run columns (flow tone);
-``filter``  passes the wrench through a linear filter (structural resonance);
-``sensor``  acts in the load cell: crosstalk between channels, drift.
+1. the ``workbench.effects`` entry-point group of installed packages
+   (``[project.entry-points."workbench.effects"]`` in a ``pyproject.toml``: ``name = "module:Class"``);
+2. the modules of :mod:`workbench.diagnose.effects` that define ``EFFECTS``, so the in-tree
+   library works when the package metadata is stale (an editable install not reinstalled
+   after an effect was added);
+3. :func:`register_effect` at run time (a notebook, a test).
 
-Linear parameters are fitted by weighted least squares on the columns; nonlinear ones (a time
-constant, a frequency) by a search that wraps the linear fit (:class:`SearchParam`). Effects
-name their terms readably (:meth:`Effect.get_feature_names`) and compose with ``+`` into an
-:class:`EffectLibrary`, the candidate set the selection draws from.
+One name, one class: two different classes under one name are an error naming both sources.
+This module imports no effect module statically (they import :mod:`.effects.base`), so there
+is no import cycle between the table and the effects.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from functools import cached_property
+import importlib
+import pkgutil
+from functools import lru_cache
 
 import numpy as np
 
-from workbench.hydro.motion import LegMotion
+from workbench.diagnose.effects.base import (  # noqa: F401 - re-exported: the library's public names
+    ALL_CHANNELS,
+    STAGES,
+    Context,
+    Effect,
+    EffectLibrary,
+    SearchParam,
+    Terms,
+)
+from workbench.errors import ModelError
 
-STAGES = ("input", "force", "filter", "sensor")
+#: the entry-point group effects register in
+ENTRY_POINT_GROUP = "workbench.effects"
+#: the package whose modules' ``EFFECTS`` make the in-tree library
+IN_TREE_PACKAGE = "workbench.diagnose.effects"
 
-
-@dataclass(frozen=True)
-class SearchParam:
-    """A nonlinear parameter: its search grid (coarse, then refined within ``bounds``)."""
-
-    name: str
-    grid: tuple[float, ...]
-    bounds: tuple[float, float]
-    log: bool = False
-
-
-@dataclass
-class Terms:
-    """What an effect adds at its stage for one batch: linear columns, a fixed part, per-run columns.
-
-    Columns are wrenches ``(B, T, 6)`` of a unit parameter; ``support`` lists the channels in
-    which each column can be nonzero (crosstalk and drift touch one channel each).
-    """
-
-    names: list[str] = field(default_factory=list)
-    cols: list[np.ndarray] = field(default_factory=list)
-    support: list[np.ndarray] = field(default_factory=list)
-    fixed: np.ndarray | None = None
-    local_names: list[str] = field(default_factory=list)
-    local: list[np.ndarray] = field(default_factory=list)
+_RUNTIME: dict[str, type[Effect]] = {}
 
 
-class Context:
-    """What effects see of one batch of runs under one configuration (motion after input effects)."""
-
-    def __init__(self, rs, model, motion: LegMotion, geometry, rho_kgpm3: float = 1000.0):
-        self.rs = rs
-        self.model = model
-        self.motion = motion
-        self.geometry = geometry
-        self.rho = rho_kgpm3
-        self._flow_cache: dict[float, np.ndarray] = {}
-
-    @property
-    def dt_s(self) -> float:
-        """Tick interval."""
-        return self.motion.dt_s
-
-    @property
-    def time_s(self) -> np.ndarray:
-        """(B, T) time since the run's first trigger edge."""
-        return self.rs.time_s
-
-    @cached_property
-    def kin(self):
-        """Kinematics of the (transformed) motion."""
-        from workbench.diagnose.flowterms import LegKinematics
-
-        return LegKinematics(self.motion, self.geometry, self.rho)
-
-    @cached_property
-    def base(self) -> np.ndarray:
-        """The diagnosed model's wrench on the (transformed) motion."""
-        return np.asarray(self.model.wrench(self.motion), float)
-
-    def wrench_at_flow(self, factor: float) -> np.ndarray:
-        """The model's wrench with every flow speed scaled by ``factor`` (cached)."""
-        if factor == 1.0:
-            return self.base
-        if factor not in self._flow_cache:
-            m = self.motion
-            scaled = LegMotion(m.dt_s, m.theta_h_deg, m.theta_k_deg, m.omega_h_dps, m.omega_k_dps,
-                               m.flow_speed_mps * factor, m.alpha_h_dps2, m.alpha_k_dps2)
-            self._flow_cache[factor] = np.asarray(self.model.wrench(scaled), float)
-        return self._flow_cache[factor]
+def _check_class(cls, source: str) -> type[Effect]:
+    if not (isinstance(cls, type) and issubclass(cls, Effect)):
+        raise ModelError(f"{source} is not an Effect class ({cls!r})",
+                         hint="an effect subclasses workbench.diagnose.effects.base.Effect")
+    if not cls.name or cls.stage not in STAGES:
+        raise ModelError(f"effect {cls.__name__} from {source} needs a name and a stage in {STAGES}")
+    return cls
 
 
-ALL_CHANNELS = np.ones(6, bool)
+def _add(table: dict, sources: dict, cls: type[Effect], source: str) -> None:
+    have = table.get(cls.name)
+    if have is not None and have is not cls:
+        raise ModelError(f"effect {cls.name!r} is registered twice: {sources[cls.name]} and {source}",
+                         hint="rename one of them (effect names are unique)")
+    table.setdefault(cls.name, cls)
+    sources.setdefault(cls.name, source)
 
 
-class Effect:
-    """Base class of candidate effects; subclasses set the class attributes and one or two hooks."""
-
-    #: canonical snake_case name (the effect table)
-    name: str = ""
-    stage: str = "force"
-    #: part of the physical leg (kept in the model handed to the simulator); rig artefacts are not
-    physical: bool = True
-    #: the effect's formula in one line (report and docs)
-    formula: str = ""
-    #: nonlinear parameters found by search
-    search: tuple[SearchParam, ...] = ()
-    #: drop individually insignificant linear terms after selection (crosstalk entries, drift channels)
-    prunable: bool = False
-    #: needs a frequency proposed by the residual evidence (a narrowband peak) to be a candidate
-    needs_peak: bool = False
-
-    # ------------------------------------------------------------------ composition
-    def __add__(self, other: "Effect | EffectLibrary") -> "EffectLibrary":
-        return EffectLibrary([self]) + other
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}()"
-
-    def get_feature_names(self) -> list[str]:
-        """Readable names of this effect's terms (``effect: formula``)."""
-        names = [f"{self.name}.{p}" for p in self.linear_names()]
-        names += [f"{self.name}.{s.name} (searched)" for s in self.search]
-        return [f"{n}  [{self.formula}]" for n in names] or [f"{self.name}  [{self.formula}]"]
-
-    def linear_names(self) -> list[str]:
-        """Names of the linear parameters (a crosstalk or drift effect lists every entry it may fit)."""
-        return []
-
-    def default_nl(self) -> dict[str, float]:
-        """Starting values of the nonlinear parameters."""
-        return {s.name: float(np.median(s.grid)) for s in self.search}
-
-    # ----------------------------------------------------------------------- hooks
-    def transform_motion(self, motion: LegMotion, nl: dict) -> LegMotion:
-        """Input stage: the motion the leg really made."""
-        return motion
-
-    def force_terms(self, ctx: Context, nl: dict) -> Terms:
-        """Force stage: linear columns, fixed part and per-run columns."""
-        return Terms()
-
-    def filter_wrench(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:
-        """Filter stage: the wrench (..., B, T, 6) through the effect (linear in ``w``)."""
-        return w
-
-    def sensor_terms(self, ctx: Context, nl: dict, prediction: np.ndarray) -> Terms:
-        """Sensor stage: columns that may depend on the predicted true wrench."""
-        return Terms()
-
-    def canonical_params(self, coefs: dict[str, float], nl: dict[str, float],
-                         cov: dict[tuple[str, str], float], local: dict | None = None) -> tuple[dict, dict]:
-        """Canonical parameters and their standard errors from the fitted values.
-
-        ``cov`` holds the covariance of linear and (linearised) nonlinear parameters by name
-        pair; ``local`` the per-run values and weights of per-run columns.
-        """
-        params = {**nl, **coefs}
-        se = {k: float(np.sqrt(max(cov.get((k, k), np.nan), 0.0))) if (k, k) in cov else float("nan")
-              for k in params}
-        return params, se
-
-    #: physically plausible range of each canonical parameter (a fit outside absorbs something else)
-    ranges: dict[str, tuple[float, float]] = {}
-
-    def implausible(self, params: dict) -> str | None:
-        """Why the fitted canonical parameters are not this effect (None when they are plausible)."""
-        for k, v in params.items():
-            rng = self.ranges.get(k) or next((r for pat, r in self.ranges.items()
-                                              if pat.endswith("*") and k.startswith(pat[:-1])), None)
-            if rng and v is not None and np.isfinite(v) and not rng[0] <= v <= rng[1]:
-                return f"{k} = {v:.3g} is outside the plausible range [{rng[0]:g}, {rng[1]:g}]"
-        return None
-
-    def null_variants(self, nl: dict) -> list[dict]:
-        """Parameter values that should explain nothing (the null of per-run nuisance fits)."""
-        return []
+@lru_cache(maxsize=1)
+def _in_tree() -> tuple[tuple[str, type[Effect]], ...]:
+    pkg = importlib.import_module(IN_TREE_PACKAGE)
+    out = []
+    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
+        mod = importlib.import_module(f"{IN_TREE_PACKAGE}.{info.name}")
+        out += [(f"{mod.__name__}:{c.__name__}", c) for c in getattr(mod, "EFFECTS", ())]
+    return tuple(out)
 
 
-class EffectLibrary:
-    """A composable set of candidate effects (``a + b + c``)."""
+@lru_cache(maxsize=1)
+def _entry_points() -> tuple[tuple[str, str, object], ...]:
+    from importlib.metadata import entry_points
 
-    def __init__(self, effects: list[Effect] | None = None):
-        self.effects: list[Effect] = list(effects or [])
-        names = [e.name for e in self.effects]
-        dup = {n for n in names if names.count(n) > 1}
-        if dup:
-            from workbench.errors import ModelError
+    eps = sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name)
+    out = []
+    for ep in eps:
+        try:
+            out.append((ep.name, f"entry point {ep.name} = {ep.value}", ep.load()))
+        except Exception as exc:  # noqa: BLE001 - a broken plug-in is reported by name, below
+            out.append((ep.name, f"entry point {ep.name} = {ep.value}", exc))
+    return tuple(out)
 
-            raise ModelError(f"effect library lists {sorted(dup)} twice")
 
-    def __add__(self, other: "Effect | EffectLibrary") -> "EffectLibrary":
-        extra = other.effects if isinstance(other, EffectLibrary) else [other]
-        return EffectLibrary(self.effects + list(extra))
-
-    def __iter__(self):
-        return iter(self.effects)
-
-    def __len__(self) -> int:
-        return len(self.effects)
-
-    def __getitem__(self, name: str) -> Effect:
-        for e in self.effects:
-            if e.name == name:
-                return e
-        raise KeyError(name)
-
-    def names(self) -> list[str]:
-        """Effect names in library order."""
-        return [e.name for e in self.effects]
-
-    def get_feature_names(self) -> list[str]:
-        """Every term of every effect, readable."""
-        return [n for e in self.effects for n in e.get_feature_names()]
-
-    def without(self, *names: str) -> "EffectLibrary":
-        """The library less some effects."""
-        return EffectLibrary([e for e in self.effects if e.name not in names])
+def refresh() -> None:
+    """Read the entry points and the in-tree modules again (after installing a plug-in)."""
+    _in_tree.cache_clear()
+    _entry_points.cache_clear()
 
 
 def registry() -> dict[str, type[Effect]]:
-    """Every library effect class by canonical name."""
-    from workbench.diagnose.effects_fluid import FLUID_EFFECTS
-    from workbench.diagnose.effects_rig import RIG_EFFECTS
+    """Every effect class by canonical name: in-tree first (library order), then plug-ins by name.
 
-    return {cls.name: cls for cls in (*FLUID_EFFECTS, *RIG_EFFECTS)}
+    An entry point that fails to load is ignored when the in-tree library has its name (stale
+    metadata from an older layout); otherwise it is an error naming the entry point.
+    """
+    table: dict[str, type[Effect]] = {}
+    sources: dict[str, str] = {}
+    for source, cls in _in_tree():
+        _add(table, sources, _check_class(cls, source), source)
+    for name, source, obj in _entry_points():
+        if isinstance(obj, Exception):
+            if name in table:
+                continue
+            raise ModelError(f"effect plug-in {name!r} does not load ({source}): {type(obj).__name__}: {obj}",
+                             hint="fix or uninstall the package that declares it")
+        cls = _check_class(obj, source)
+        if cls.name != name:
+            raise ModelError(f"{source} declares effect {cls.name!r} under the name {name!r}")
+        _add(table, sources, cls, source)
+    for cls in _RUNTIME.values():
+        _add(table, sources, cls, f"register_effect({cls.__module__}.{cls.__name__})")
+    return table
+
+
+def register_effect(cls: type[Effect]) -> type[Effect]:
+    """Add an effect class to the table at run time (usable as a class decorator); returns it."""
+    _check_class(cls, f"{cls.__module__}.{getattr(cls, '__name__', cls)}")
+    known = registry()
+    if cls.name in known and known[cls.name] is not cls:
+        raise ModelError(f"effect {cls.name!r} is registered already ({known[cls.name].__module__})",
+                         hint="rename the new effect")
+    _RUNTIME[cls.name] = cls
+    return cls
+
+
+def unregister_effect(name: str) -> None:
+    """Remove an effect added by :func:`register_effect` (entry points and in-tree effects stay)."""
+    _RUNTIME.pop(name, None)
 
 
 def effect_options(effect: Effect) -> dict:
     """Constructor options of an effect (JSON-serialisable), so a saved model rebuilds it exactly."""
-    if effect.name == "loadcell_crosstalk":
-        return {"pairs": [list(p) for p in effect.pairs], "aliases": dict(effect.aliases)}
-    if effect.name == "link_drag":
-        return {"x_m": effect.x_m, "quadrature": effect.quadrature}
-    if effect.name == "circulatory_lag":
-        return {"c_r": effect.c_r, "chord_m": effect.chord_m, "speed_floor_mps": effect.floor}
-    if effect.name == "wagner_lag":
-        return {"chord_m": effect.chord_m, "speed_floor_mps": effect.floor, "quadrature": effect.quadrature,
-                "time_scale": effect.time_scale}
-    if effect.name in ("link_inertia", "link_weight_buoyancy"):
-        return {"x_m": effect.x_m, "quadrature": effect.quadrature}
-    if effect.name == "normal_force_law":
-        return {"quadrature": effect.quadrature}
-    if effect.name == "added_mass_kc":
-        return {"exponent": effect.exponent}
-    return {}
+    return effect.options()
 
 
 def make_effect(name: str, options: dict | None = None) -> Effect:
     """Build a library effect by name with its options."""
-    from workbench.errors import ModelError
-
     reg = registry()
     if name not in reg:
         raise ModelError(f"unknown effect {name!r}", hint=f"known: {', '.join(sorted(reg))}")
-    opts = dict(options or {})
-    if name == "loadcell_crosstalk" and "pairs" in opts:
-        opts["pairs"] = [tuple(p) for p in opts["pairs"]]
-    return reg[name](**opts)
+    try:
+        return reg[name].from_options(options)
+    except TypeError as exc:
+        raise ModelError(f"effect {name!r}: bad options {sorted(dict(options or {}))}: {exc}",
+                         hint=f"{name}'s options are the keyword arguments of {reg[name].__name__}") from exc
 
 
 def default_library(names: list[str] | None = None, link_x_m: float = 0.01, link_quadrature: int = 4,
                     circulatory_c_r: float = 0.7) -> EffectLibrary:
-    """The documented library (docs/diagnose.md), optionally restricted to ``names``."""
+    """The documented library (docs/diagnose.md), optionally restricted to ``names``.
+
+    The keyword settings (``pipelines/diagnose.yaml`` section ``library``) reach the effects that
+    name them in :attr:`~workbench.diagnose.effects.base.Effect.library_options`.
+    """
+    settings = {"link_x_m": link_x_m, "link_quadrature": link_quadrature, "circulatory_c_r": circulatory_c_r}
     reg = registry()
     names = list(reg) if not names else list(names)
-    links = {"x_m": link_x_m, "quadrature": link_quadrature}
-    opts = {"link_drag": links, "link_inertia": links, "link_weight_buoyancy": links,
-            "circulatory_lag": {"c_r": circulatory_c_r}}
-    return EffectLibrary([make_effect(n, opts.get(n)) for n in names])
+    out = []
+    for n in names:
+        cls = reg.get(n)
+        opts = {kw: settings[key] for key, kw in getattr(cls, "library_options", {}).items() if key in settings}
+        out.append(make_effect(n, opts or None))
+    return EffectLibrary(out)
+
+
+def location_params() -> set[str]:
+    """Canonical parameters that locate an effect rather than measure it, over the whole table."""
+    return {p for cls in registry().values() for p in cls.location_params}
 
 
 def truth_reference(truth: dict, ef_params=None) -> dict[str, dict[str, float]]:

@@ -21,7 +21,7 @@ from workbench.diagnose.chain import Active, Configuration, Design, Lowpass
 from workbench.diagnose.data import DataSettings, prepare
 from workbench.diagnose.evidence import Evidence, EvidenceSettings, analyse
 from workbench.diagnose.library import EffectLibrary, default_library
-from workbench.diagnose.problem import FitSettings, Problem, flow_gains, run_residuals
+from workbench.diagnose.problem import FitSettings, Problem, run_residuals
 from workbench.diagnose.selection import SelectionSettings, StepwiseSelection, judge
 from workbench.errors import ContractError
 
@@ -246,54 +246,60 @@ def _local_rows(fit: lsq.Fit, d: Design, rs) -> dict[str, np.ndarray] | None:
     return {n: vals[:, j] for j, n in enumerate(d.local_names)}
 
 
-def _local_table(fit: lsq.Fit, grams: lsq.Grams, campaign) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per-run values and information of the local columns, by local name."""
+def _local_table(fit: lsq.Fit, grams: lsq.Grams, campaign, effect: str) -> dict[str, tuple] | None:
+    """One effect's per-run columns: (values, information, flow speed) over runs, by local name (None: none)."""
     if not grams.local_names or not fit.local:
-        return {}
+        return None
     runs = sorted(fit.local)
     out = {}
     for j, n in enumerate(grams.local_names):
+        owner, local = n.split(".", 1)
+        if owner != effect:
+            continue
         vals = np.array([fit.local[r][j] for r in runs])
         info = np.array([fit.local_info[r][j] for r in runs])
         flows = np.array([campaign.runs[r].flow_speed_mps for r in runs])
-        info = np.where(flows > 0, info, 0.0)
-        out[n.split(".", 1)[1]] = (vals, info)
-    return out
+        out[local] = (vals, info, flows)
+    return out or None
 
 
-HINTS: dict[str, Callable[[Evidence], str]] = {}
+class Probe:
+    """The loop's view of the residuals, for the hooks through which effects propose and check themselves.
 
+    ``problem``: the fitting problem; ``settings``: the :class:`DiagnoseSettings`; ``cutoff``: the
+    highest frequency examined; ``residuals(config, fit)``: every run's residual under a
+    configuration (the base model's when it is empty; the last one is remembered);
+    ``peaks_of(config, fit)``: its narrowband lines.
+    """
 
-def _ccf_hint(ev: Evidence, key: str, what: str) -> str:
-    c = ev.ccf.get(key)
-    if not c:
-        return ""
-    i = int(np.argmax(c["max_ratio"]))
-    return f"the residual correlates with {what} ({CHANNELS[i]}: {c['max_ratio'][i]:.1f}x its Bartlett bound)"
+    def __init__(self, problem: Problem, settings: "DiagnoseSettings", cutoff: float, res_before: list,
+                 ev_before: Evidence):
+        self.problem = problem
+        self.settings = settings
+        self.cutoff = cutoff
+        self.res_before = res_before
+        self.ev_before = ev_before
+        self._cache: dict[int, list] = {}
 
+    def run_residuals(self, config: Configuration, fit: lsq.Fit) -> list:
+        """Every run's residual under ``config`` fitted by ``fit`` (computed afresh)."""
+        return run_residuals(self.problem, config, fit)
 
-def _hint(name: str, ev: Evidence, eff_params: dict) -> str:
-    """The piece of residual evidence that points at an effect (one clause)."""
-    if name in ("servo_lag", "circulatory_lag"):
-        return _ccf_hint(ev, "model_force_rate", "the rate of the model's force")
-    if name == "structural_resonance":
-        return _ccf_hint(ev, "model_force_accel", "the second derivative of the model's force")
-    if name in ("added_mass_error",):
-        return _ccf_hint(ev, "model_force_accel", "the model's force derivatives")
-    if name == "sensor_drift":
-        c = max(CHANNELS, key=lambda k: abs(ev.trend[k]["t"]))
-        return f"the residual trends with time in the run ({c}: {ev.trend[c]['slope']:.3g}/s, t = {ev.trend[c]['t']:.1f})"
-    if name == "flow_unsteadiness":
-        return f"a tone at {eff_params.get('tone_hz', float('nan')):.2f} Hz rides on the flow sensitivity of the force"
-    if name == "loadcell_crosstalk":
-        return _ccf_hint(ev, "model_force", "the model's force in another channel")
-    if name == "leg_weight_buoyancy":
-        return f"fz is offset at every pose (residual fz mean {np.nanmean(ev.by_angle['mean'][:, 2]):.3g} N)"
-    if name == "tunnel_blockage":
-        worst = max(ev.by_flow, key=lambda k: float(k)) if ev.by_flow else None
-        return f"the misfit grows with flow speed (fy MSE {ev.by_flow[worst]['fy_n']:.3g} at {worst} m/s)" if worst else ""
-    locked = max(CHANNELS, key=lambda k: ev.locked_share[k])
-    return f"{ev.locked_share[locked]:.0%} of the {locked} residual repeats every stroke"
+    def residuals(self, config: Configuration, fit: lsq.Fit) -> list:
+        """Every run's residual under ``config`` (the base model's when empty; the last one cached)."""
+        if not config.actives:
+            return self.res_before
+        key = id(fit)
+        if key not in self._cache:
+            self._cache.clear()
+            self._cache[key] = run_residuals(self.problem, config, fit)
+        return self._cache[key]
+
+    def peaks_of(self, config: Configuration, fit: lsq.Fit) -> list:
+        """The residual's narrowband lines under ``config``."""
+        if not config.actives:
+            return self.ev_before.peaks
+        return ev_mod.peaks(self.residuals(config, fit), self.settings.evidence, self.cutoff)
 
 
 # ------------------------------------------------------------------------------ loop
@@ -378,52 +384,14 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
     base_fit = problem.fit(Configuration(), names=[])
     res_before = run_residuals(problem, Configuration(), base_fit)
     ev_before = analyse(res_before, s.evidence, cutoff, model_force=[r.predicted for r in res_before])
-    cache: dict[int, list] = {}
+    probe = Probe(problem, s, cutoff, res_before, ev_before)
 
-    def residuals_of(config: Configuration, fit: lsq.Fit) -> list:
-        key = id(fit)
-        if key not in cache:
-            cache.clear()
-            cache[key] = run_residuals(problem, config, fit)
-        return cache[key]
-
-    def peaks_of(config: Configuration, fit: lsq.Fit):
-        rr = res_before if not config.actives else residuals_of(config, fit)
-        plain = ev_before.peaks if not config.actives else ev_mod.peaks(rr, s.evidence, cutoff)
-        carried = ev_mod.flow_tone_peaks(rr, flow_gains(problem, config), problem.weights, s.evidence, cutoff)
-        out = list(carried)
-        for p in plain:
-            if all(abs(p.frequency_hz - q.frequency_hz) > 0.1 for q in out):
-                out.append(p)
-        return out
+    def peaks_of(effect, config: Configuration, fit: lsq.Fit):
+        return effect.proposals(probe, config, fit)
 
     def plausible(cand, config: Configuration, fit: lsq.Fit):
-        if cand.effect.name != "flow_unsteadiness":
-            return True, ""
-        f0 = cand.active.nl["tone_hz"]
-        rr = res_before if not config.actives else residuals_of(config, fit)
-        zero = [r for r in rr if abs(r.flow) < 1e-9]
-        if len(zero) >= 2:
-            zp = ev_mod.peaks(zero, s.evidence, cutoff)
-            hit = [p for p in zp if abs(p.frequency_hz - f0) < 0.1]
-            if hit:
-                return False, (f"the {f0:.2f} Hz line is there at zero flow too ({', '.join(hit[0].channels)}): "
-                               "not carried by the flow")
-        after = run_residuals(problem, cand.config, cand.fit)
-        left = [p for p in ev_mod.peaks(after, s.evidence, cutoff) if abs(p.frequency_hz - f0) < 0.1]
-        if left:
-            # a flow-borne tone removes most of its line; an electrical line or a vibration stays put.
-            # The model's flow sensitivity is only as good as the model, so a remnant may stay.
-            def excess(pk) -> float:
-                return sum(max(v - 1.0, 0.0) for c, v in pk.ratio.items() if c in pk.channels)
-
-            before = [p for p in ev_mod.peaks(rr, s.evidence, cutoff) if abs(p.frequency_hz - f0) < 0.1]
-            eb = max((excess(p) for p in before), default=0.0)
-            ea = max(excess(p) for p in left)
-            if eb <= 0 or ea > s.selection.tone_line_left * eb:
-                return False, (f"a flow-borne tone leaves the {f0:.2f} Hz line in {', '.join(left[0].channels)} "
-                               f"({ea:.0f} of {eb:.0f} excess power ratio)")
-        return True, ""
+        why = cand.effect.check(cand, probe, config, fit)
+        return (False, why) if why else (True, "")
 
     say("selecting effects (held-out runs judge each candidate)")
     result = selection.select(problem, library, peaks_of=peaks_of, plausible=plausible, progress=None)
@@ -434,11 +402,10 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
     res_after = run_residuals(problem, config, final)
     ev_after = analyse(res_after, s.evidence, cutoff, model_force=[r.predicted for r in res_after])
     mse_after = _heldout_mse(res_after)
+    claimed = {a.name: a.effect for a in config.actives}
     for e in effects:
-        if e.name == "flow_unsteadiness":
-            rms, se = flow_noise_rms(res_after, flow_gains(problem, config), problem.weights)
-            e.params["rms_fraction"], e.stderr["rms_fraction"] = rms, se
-    unexplained = _unexplained(ev_after, effects, s)
+        claimed[e.name].complete(e.params, e.stderr, problem, config, res_after)
+    unexplained = _unexplained(ev_after, effects, claimed, s)
     coefs = final.coefs()
     local: dict[str, dict[str, float]] = {}
     for j, n in enumerate(final.grams.local_names):
@@ -456,44 +423,6 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
         reference=ref_summary)
 
 
-def flow_noise_rms(runs, gains, weights) -> tuple[float | None, float]:
-    """RMS of the flow's unpredictable fluctuation, from how the residual variance grows with g^2.
-
-    With ``U(t) = U (1 + n(t))`` the residual holds ``g n`` (``g = U dF/dU``), so within a run
-    ``r_c^2 = a_c + rms^2 g_c^2`` on average; per-run intercepts absorb each run's bias and noise
-    level. Channels are pooled with their precision. None when no run has flow.
-    """
-    num = den = 0.0
-    terms = []
-    for run, g in zip(runs, gains, strict=False):
-        if run.flow <= 0 or run.fit.sum() < 16:
-            continue
-        e2 = run.resid[run.fit] ** 2
-        g2 = g[run.fit] ** 2
-        x = g2 - g2.mean(axis=0)
-        y = e2 - e2.mean(axis=0)
-        for c in range(6):
-            sxx = float(x[:, c] @ x[:, c])
-            if sxx <= 0:
-                continue
-            terms.append((float(x[:, c] @ y[:, c]) / sxx, sxx, float(np.var(y[:, c])), c))
-    if not terms:
-        return None, float("nan")
-    by_c: dict[int, list] = {}
-    for b, sxx, vy, c in terms:
-        by_c.setdefault(c, []).append((b, sxx, vy))
-    for rows in by_c.values():
-        sxx = sum(r[1] for r in rows)
-        b = sum(r[0] * r[1] for r in rows) / sxx
-        var_b = max(np.mean([r[2] for r in rows]), 1e-300) / sxx
-        num += b / var_b
-        den += 1 / var_b
-    b = num / den
-    rms = float(np.sqrt(max(b, 0.0)))
-    se_b = float(np.sqrt(1 / den))
-    return rms, (se_b / (2 * rms) if rms > 0 else float("nan"))
-
-
 def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dict, ev_before: Evidence,
                     s: DiagnoseSettings) -> list[EffectReport]:
     """Canonical parameters, intervals, sequential held-out reductions and evidence of each claimed effect."""
@@ -503,7 +432,6 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
     cov_names = list(final.names)
     cov = {(a, b): float(final.cov[i, j]) for i, a in enumerate(cov_names) for j, b in enumerate(cov_names)}
     cov.update({(k, k): v * v for k, v in nl_se.items()})
-    local = _local_table(final, final.grams, problem.campaign)
     order = [st.candidate.effect.name for st in result.steps]
     coefs = final.coefs()
     prefix_fits: dict[frozenset, lsq.Fit] = {}
@@ -553,19 +481,15 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
         eff_cov = {(a.split(".", 1)[1], b.split(".", 1)[1]): v for (a, b), v in cov.items()
                    if a.split(".", 1)[0] == name and b.split(".", 1)[0] == name}
         params, se = act.effect.canonical_params(eff_coefs, dict(act.nl), eff_cov,
-                                                 local if name == "flow_unsteadiness" else None)
+                                                 _local_table(final, final.grams, problem.campaign, name))
         step = next(st for st in result.steps if st.candidate.effect.name == name)
         best_c = CHANNELS[int(np.argmax(step_rel))]
         reduction = float(by_ch.mean())
-        hint = _hint(name, ev_before, params)
+        hint = act.effect.hint(ev_before, params)
         alt = f"; {', '.join(step.alternatives)} explained nearly as much" if step.alternatives else ""
         sentence = (f"{hint + '; ' if hint else ''}adding {name} removes {step_rel.max():.0%} of the held-out "
                     f"{best_c} error (held-out t = {test['t']:.1f} over {test['n_blocks']} blocks){alt}.")
-        notes = []
-        aliases = getattr(act.effect, "aliases", {})
-        for k in eff_coefs:
-            if k in aliases:
-                notes.append(f"{k} stands for {k}{aliases[k]} (proportional sources in this model)")
+        notes = list(act.effect.notes(eff_coefs))
         amb = [n for n in step.ambiguous_with if n != name]
         if amb:
             notes.append(f"the held-out data cannot tell {name} from {', '.join(amb)} (the winner's held-out "
@@ -577,17 +501,14 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
     return reports
 
 
-def _claim_faults(rep: EffectReport, s: DiagnoseSettings) -> str | None:
+def _claim_faults(rep: EffectReport, effect, s: DiagnoseSettings) -> str | None:
     """Why a claimed effect may not stand once its final intervals are known (None when it may)."""
     from workbench.diagnose.selection import magnitude_intervals
 
-    spans = magnitude_intervals(rep.params, rep.stderr, s.selection.interval_z)
+    spans = magnitude_intervals(rep.params, rep.stderr, s.selection.interval_z, effect.location_params)
     if spans and all(spans.values()):
         return f"every magnitude parameter's 95 % interval spans zero ({', '.join(spans)})"
-    zeta = rep.params.get("zeta")
-    if rep.name == "structural_resonance" and _isnum(zeta) and zeta > s.selection.max_mode_zeta:
-        return f"zeta = {zeta:.2f} > {s.selection.max_mode_zeta:g}: a heavily damped mode is a delay"
-    return None
+    return effect.refusal(rep.params, s.selection)
 
 
 def _enforce_claims(problem: Problem, result, base_fit: lsq.Fit, mse_before: dict, ev_before: Evidence,
@@ -600,7 +521,8 @@ def _enforce_claims(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
     """
     while True:
         effects = _effect_reports(problem, result, base_fit, mse_before, ev_before, s)
-        faults = {e.name: _claim_faults(e, s) for e in effects}
+        claimed = {a.name: a.effect for a in result.config.actives}
+        faults = {e.name: _claim_faults(e, claimed[e.name], s) for e in effects}
         faults = {k: v for k, v in faults.items() if v}
         if not faults:
             return result, effects
@@ -618,12 +540,12 @@ def _enforce_claims(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
         result = type(result)(config, names, fit, steps, table)
 
 
-def _unexplained(ev: Evidence, effects: list[EffectReport], s: DiagnoseSettings) -> list[Unexplained]:
+def _unexplained(ev: Evidence, effects: list[EffectReport], claimed: dict, s: DiagnoseSettings) -> list[Unexplained]:
     """Residual structure left after the claimed effects: lines, stroke-locked misfit, trends."""
     out: list[Unexplained] = []
-    tones = [e.params.get("tone_hz") for e in effects if e.name == "flow_unsteadiness"]
+    lines = [f for e in effects for f in claimed[e.name].explained_frequencies(e.params)]
     for p in ev.peaks:
-        if any(t is not None and abs(p.frequency_hz - t) < 0.1 for t in tones):
+        if any(abs(p.frequency_hz - f) < 0.1 for f in lines):
             continue
         best = max(p.ratio, key=p.ratio.get)
         out.append(Unexplained("narrowband", sorted(p.channels, key=CHANNELS.index),
@@ -647,5 +569,5 @@ def _unexplained(ev: Evidence, effects: list[EffectReport], s: DiagnoseSettings)
         worst = max(trend, key=lambda c: abs(ev.trend[c]["t"]))
         out.append(Unexplained("trend", trend,
                                f"the {worst} residual drifts by {ev.trend[worst]['slope']:.3g} per second within "
-                               f"runs (t = {ev.trend[worst]['t']:.1f}) beyond what sensor_drift removed."))
+                               f"runs (t = {ev.trend[worst]['t']:.1f}) beyond what the claimed effects removed."))
     return out

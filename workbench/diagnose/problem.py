@@ -138,16 +138,18 @@ class Problem:
 
     def fit(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
             sets: str = "all", fixed: dict | None = None, surrogate: bool | None = None) -> lsq.Fit:
-        """Fit ``config``; repeats while crosstalk columns depend on the force coefficients."""
+        """Fit ``config``; repeats while sensor columns read the prediction, which the force coefficients change."""
         coefs = dict(coefs or {})
         passes = self.settings.passes if _reads_prediction(config) else 1
+        # the coefficients of effects that read the prediction follow the others: they do not set the pace
+        readers = tuple(f"{a.name}." for a in config.actives if a.effect.reads_prediction)
         result = None
         for _ in range(max(1, passes)):
             gr = self.grams(config, coefs, names, sets, surrogate)
             result = lsq.fit(gr, self.weights, self.settings.hac_lags, fixed)
             new = result.coefs()
             change = max((abs(new[k] - coefs.get(k, 0.0)) / (abs(new[k]) + 1e-12) for k in new
-                          if not k.startswith("loadcell_crosstalk.")), default=0.0)
+                          if not k.startswith(readers)), default=0.0)
             coefs.update(new)
             if change < 1e-3:
                 break
@@ -157,7 +159,7 @@ class Problem:
 
 def _reads_prediction(config: Configuration) -> bool:
     has_force_cols = any(a.effect.linear_names() for a in config.stage("force"))
-    return has_force_cols and any(a.name == "loadcell_crosstalk" for a in config.actives)
+    return has_force_cols and any(a.effect.reads_prediction for a in config.actives)
 
 
 def run_residuals(problem: Problem, config: Configuration, fit: lsq.Fit | None = None):
@@ -184,26 +186,3 @@ def run_residuals(problem: Problem, config: Configuration, fit: lsq.Fit | None =
                 omega_k=m.omega_k_dps[i, v], measured=rs.y[i, v], predicted=pred[i, v]))
     out.sort(key=lambda r: r.index)
     return out
-
-
-def flow_gains(problem: Problem, config: Configuration) -> list[np.ndarray]:
-    """Per run (index order, valid ticks): g = U dW/dU of the model on the configuration's motion."""
-    from workbench.diagnose.effects_rig import FlowUnsteadiness
-    from workbench.diagnose.library import Context
-
-    fu = FlowUnsteadiness()
-    out = {}
-    for rs in problem.campaign.sets:
-        ctx = problem.context(rs, config)
-        if ctx is None:
-            motion = rs.motion
-            for a in config.stage("input"):
-                motion = a.effect.transform_motion(motion, a.nl)
-            ctx = Context(rs, problem.model, motion, problem.geometry)
-        # the model at the scaled flows is cached with the batch's context (an LSTM runs once per input)
-        g = fu.gain(ctx)
-        if problem.lowpass is not None:
-            g = problem.lowpass(g, rs.dt_s, axis=-2)
-        for i in range(rs.shape[0]):
-            out[int(rs.index[i])] = g[i, rs.valid[i]]
-    return [out[k] for k in sorted(out)]

@@ -28,7 +28,7 @@ from scipy import optimize, stats
 from workbench.contract.columns import WRENCH_CHANNELS
 from workbench.diagnose import lsq
 from workbench.diagnose.chain import Active, Configuration
-from workbench.diagnose.library import Effect, EffectLibrary
+from workbench.diagnose.effects.base import Effect, EffectLibrary
 
 
 @dataclass(frozen=True)
@@ -266,7 +266,8 @@ class StepwiseSelection:
         if effect.needs_peak:
             f0 = peak.frequency_hz
             hw = self.settings.tone_window_hz
-            grids = {"tone_hz": tuple(np.round(np.linspace(f0 - hw, f0 + hw, 9), 4))}
+            # the frequency proposed by the evidence is the effect's first searched parameter
+            grids = {effect.search[0].name: tuple(np.round(np.linspace(f0 - hw, f0 + hw, 9), 4))}
             start = None
         nl, profile = self.search(problem, config, coefs, names, effect, grids, start=start)
         if getattr(problem, "surrogate_search", False) and effect.stage == "input":
@@ -297,9 +298,10 @@ class StepwiseSelection:
     def select(self, problem, library: EffectLibrary, peaks_of=None, plausible=None, progress=None) -> SelectionResult:
         """Run the forward selection.
 
-        ``peaks_of(config, fit)`` returns the narrowband residual peaks of a configuration (the
-        frequencies a tone candidate is tried at); ``plausible(candidate, current_config,
-        current_fit)`` returns ``(ok, note)`` for structural checks.
+        ``peaks_of(effect, config, fit)`` returns the narrowband residual peaks a ``needs_peak``
+        effect is tried at under a configuration; ``plausible(candidate, current_config,
+        current_fit)`` returns ``(ok, note)`` for structural checks. Each effect is configured on
+        the campaign first (:meth:`~workbench.diagnose.effects.base.Effect.configure`).
         """
         s = self.settings
         hac = problem.settings.hac_lags
@@ -309,21 +311,16 @@ class StepwiseSelection:
         coefs: dict = {}
         steps: list[Step] = []
         table: list[dict] = []
-        crosstalk_configured = False
         last_nl: dict[str, dict] = {}
+        library = library.configured(lambda: self._sample(problem))
         for _ in range(s.max_effects):
             remaining = [e for e in library if e.name not in config.names()]
-            if not crosstalk_configured and any(e.name == "loadcell_crosstalk" for e in remaining):
-                remaining = [self._configure_crosstalk(problem, e, config, coefs)
-                             if e.name == "loadcell_crosstalk" else e for e in remaining]
-                library = EffectLibrary([next((r for r in remaining if r.name == e.name), e) for e in library])
-                crosstalk_configured = True
             linear = [e for e in remaining if not e.search and not e.needs_peak]
             cands = self._linear_candidates(problem, config, coefs, names, linear)
-            peaks = peaks_of(config, current) if peaks_of is not None else []
-            strongest = sorted(peaks, key=lambda p: -max(p.ratio.values(), default=0.0))[: s.max_peaks]
             for e in remaining:
                 if e.needs_peak:
+                    peaks = peaks_of(e, config, current) if peaks_of is not None else []
+                    strongest = sorted(peaks, key=lambda p: -max(p.ratio.values(), default=0.0))[: s.max_peaks]
                     for pk in strongest:
                         cands.append(self._nonlinear_candidate(problem, config, coefs, names, e, pk))
                 elif e.search:
@@ -403,7 +400,7 @@ class StepwiseSelection:
         if c.gain_c.max() < s.min_gain:
             reasons.append(f"held-out gain {c.gain_c.max():.1%} < {s.min_gain:.0%}")
         if not reasons:
-            why = _implausible(c) or _heavy_mode(c, s.max_mode_zeta)
+            why = _implausible(c) or _refused(c, s)
             if why:
                 reasons.append(f"implausible: {why}")
         if not reasons:
@@ -472,10 +469,12 @@ class StepwiseSelection:
                 changed = True
         return config, names, current, steps
 
-    def _configure_crosstalk(self, problem, effect, config, coefs):
+    @staticmethod
+    def _sample(problem) -> tuple[np.ndarray, np.ndarray]:
+        """The base model's prediction on the first training batch and its fitted ticks (to configure effects)."""
         rs = problem.campaign.train_sets[0]
-        d = problem.design(rs, config, coefs)
-        return effect.configured(d.predict(coefs), rs.fit)
+        d = problem.design(rs, Configuration(), {})
+        return d.predict({}), rs.fit
 
     def _prune(self, problem, cand: Candidate, coefs) -> Candidate:
         """Drop individually insignificant entries of prunable effects (crosstalk, drift) and refit."""
@@ -601,15 +600,20 @@ def _implausible(c: Candidate) -> str | None:
     return None
 
 
-#: canonical parameters that locate an effect rather than measure its size (their interval may hold zero)
-LOCATION_PARAMS = {"f_n_hz", "zeta", "tone_hz", "arm_m", "rms_fraction"}
+def magnitude_intervals(params: dict, stderr: dict, z: float = 1.96, location=None) -> dict[str, bool]:
+    """Per magnitude parameter with a finite error: whether its interval ``value +- z se`` holds zero.
 
+    ``location``: the effect's parameters that locate it rather than measure it
+    (:attr:`~workbench.diagnose.effects.base.Effect.location_params`); None: those of every effect
+    in the table.
+    """
+    if location is None:
+        from workbench.diagnose.library import location_params
 
-def magnitude_intervals(params: dict, stderr: dict, z: float = 1.96) -> dict[str, bool]:
-    """Per magnitude parameter with a finite error: whether its interval ``value +- z se`` holds zero."""
+        location = location_params()
     out = {}
     for k, v in params.items():
-        if k in LOCATION_PARAMS or not isinstance(v, (int, float)) or isinstance(v, bool):
+        if k in location or not isinstance(v, (int, float)) or isinstance(v, bool):
             continue
         se = stderr.get(k)
         if se is None or not np.isfinite(se) or not np.isfinite(v):
@@ -636,22 +640,17 @@ def _spans_zero(c: Candidate, z: float) -> str | None:
             params, se = e.canonical_params(own, {}, cov, None)
         except (ValueError, ZeroDivisionError, KeyError):
             continue
-        spans = magnitude_intervals(params, se, z)
+        spans = magnitude_intervals(params, se, z, e.location_params)
         if spans and all(spans.values()):
             k = next(iter(spans))
             return f"{e.name}: 95 % interval of {k} ({params[k]:.3g} +- {z * se[k]:.2g}) spans zero"
     return None
 
 
-def _heavy_mode(c: Candidate, max_zeta: float) -> str | None:
-    """A heavily damped fitted mode is a delay in disguise (mount modes are lightly damped)."""
-    for e in c.effects:
-        if e.name == "structural_resonance" and e is c.effect:
-            zeta = c.active.nl.get("zeta")
-            if zeta is not None and zeta > max_zeta:
-                return (f"structural_resonance: zeta = {zeta:.2f} > {max_zeta:g}: a heavily damped mode is a "
-                        "delay (servo or circulatory lag), not a mount mode")
-    return None
+def _refused(c: Candidate, settings: SelectionSettings) -> str | None:
+    """The candidate's searched values are another effect in disguise (its own rule, e.g. a damped mode is a delay)."""
+    why = c.effect.refusal(dict(c.active.nl), settings)
+    return f"{c.effect.name}: {why}" if why else None
 
 
 def _heldout_mse(f: lsq.Fit) -> np.ndarray:

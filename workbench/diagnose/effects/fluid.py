@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from workbench.diagnose.effects.base import ALL_CHANNELS, Context, Effect, SearchParam, Terms
+from workbench.diagnose.evidence import ccf_clause
 from workbench.diagnose.flowterms import add_point_force, first_order_lag
-from workbench.diagnose.library import ALL_CHANNELS, Context, Effect, SearchParam, Terms
 
 
 class AddedMassError(Effect):
@@ -20,6 +21,9 @@ class AddedMassError(Effect):
     name = "added_mass_error"
     ranges = {"delta_kg": (-0.5, 0.5)}
     formula = "dF_n = -delta_kg * a_n (web normal, at Q)"
+
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        return ccf_clause(ev, "model_force_accel", "the model's force derivatives")
 
     def linear_names(self):  # noqa: D102
         return ["delta_kg"]
@@ -63,9 +67,14 @@ class LinkDrag(Effect):
     ranges = {"cd_d_m": (-0.1, 0.1)}
     formula = "dF/dl = 0.5 rho cd_d_m |V_n| V_n along thigh and calf"
 
+    library_options = {"link_x_m": "x_m", "link_quadrature": "quadrature"}
+
     def __init__(self, x_m: float = 0.01, quadrature: int = 4):
         self.x_m = float(x_m)
         self.quadrature = int(quadrature)
+
+    def options(self) -> dict:  # noqa: D102
+        return {"x_m": self.x_m, "quadrature": self.quadrature}
 
     def linear_names(self):  # noqa: D102
         return ["cd_d_m"]
@@ -83,6 +92,10 @@ class LegWeightBuoyancy(Effect):
     name = "leg_weight_buoyancy"
     ranges = {"net_n": (-5.0, 5.0), "arm_m": (-0.1, 0.4)}
     formula = "fz += net_n; (tx, ty) += net_n arm_m (X_Q, -x_Q) / |Q|"
+    location_params = ("arm_m",)
+
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        return f"fz is offset at every pose (residual fz mean {np.nanmean(ev.by_angle['mean'][:, 2]):.3g} N)"
 
     def linear_names(self):  # noqa: D102
         return ["net_n", "net_arm_nm"]
@@ -119,10 +132,18 @@ class CirculatoryLag(Effect):
     search = (SearchParam("tau_chords", (0.03, 0.1, 0.25, 0.5, 0.9, 1.5, 2.5, 4.0, 7.0, 12.0), (0.005, 40.0),
                           log=True),)
 
+    library_options = {"circulatory_c_r": "c_r"}
+
     def __init__(self, c_r: float = 0.7, chord_m: float = 0.06, speed_floor_mps: float = 0.05):
         self.c_r = float(c_r)
         self.chord_m = float(chord_m)
         self.floor = float(speed_floor_mps)
+
+    def options(self) -> dict:  # noqa: D102
+        return {"c_r": self.c_r, "chord_m": self.chord_m, "speed_floor_mps": self.floor}
+
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        return ccf_clause(ev, "model_force_rate", "the rate of the model's force")
 
     def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
         kin = ctx.kin
@@ -148,6 +169,9 @@ class NormalForceLaw(Effect):
 
     def __init__(self, quadrature: int = 5):
         self.quadrature = int(quadrature)
+
+    def options(self) -> dict:  # noqa: D102
+        return {"quadrature": self.quadrature}
 
     def linear_names(self):  # noqa: D102
         return ["c_n90"]
@@ -190,6 +214,10 @@ class WagnerLag(Effect):
         self.floor = float(speed_floor_mps)
         self.quadrature = int(quadrature)
         self.time_scale = float(time_scale)
+
+    def options(self) -> dict:  # noqa: D102
+        return {"chord_m": self.chord_m, "speed_floor_mps": self.floor, "quadrature": self.quadrature,
+                "time_scale": self.time_scale}
 
     def linear_names(self):  # noqa: D102
         return ["a_slow", "a_fast"]
@@ -255,6 +283,9 @@ class AddedMassKC(Effect):
     def __init__(self, exponent: float = 2.0 / 3.0):
         self.exponent = float(exponent)
 
+    def options(self) -> dict:  # noqa: D102
+        return {"exponent": self.exponent}
+
     def linear_names(self):  # noqa: D102
         return ["m_kc_kg"]
 
@@ -278,9 +309,14 @@ class LinkInertia(Effect):
     ranges = {"m_kgpm": (-0.1, 1.0), "web_t_kg": (-0.05, 0.2)}
     formula = "dF = -m_kgpm a dl along thigh and calf; dF_t = -web_t_kg a_t at Q"
 
+    library_options = {"link_x_m": "x_m", "link_quadrature": "quadrature"}
+
     def __init__(self, x_m: float = 0.01, quadrature: int = 4):
         self.x_m = float(x_m)
         self.quadrature = int(quadrature)
+
+    def options(self) -> dict:  # noqa: D102
+        return {"x_m": self.x_m, "quadrature": self.quadrature}
 
     def linear_names(self):  # noqa: D102
         return ["m_kgpm", "web_t_kg"]
@@ -339,9 +375,14 @@ class LinkWeightBuoyancy(Effect):
     ranges = {"net_thigh_n": (-2.0, 2.0), "net_calf_n": (-2.0, 2.0), "net_web_n": (-2.0, 2.0)}
     formula = "vertical net_<part>_n spread along thigh and calf, at Q for the web"
 
+    library_options = {"link_x_m": "x_m", "link_quadrature": "quadrature"}
+
     def __init__(self, x_m: float = 0.01, quadrature: int = 4):
         self.x_m = float(x_m)
         self.quadrature = int(quadrature)
+
+    def options(self) -> dict:  # noqa: D102
+        return {"x_m": self.x_m, "quadrature": self.quadrature}
 
     def linear_names(self):  # noqa: D102
         return ["net_thigh_n", "net_calf_n", "net_web_n"]
@@ -360,6 +401,6 @@ class LinkWeightBuoyancy(Effect):
         return params, se
 
 
-FLUID_EFFECTS = (AddedMassError, DragCoefficientError, LinkDrag, Lift, LegWeightBuoyancy, CirculatoryLag,
+EFFECTS = (AddedMassError, DragCoefficientError, LinkDrag, Lift, LegWeightBuoyancy, CirculatoryLag,
                  NormalForceLaw, WagnerLag, RotatingAddedMass, AddedMassKC, LinkInertia, LateralForce,
                  LinkWeightBuoyancy)

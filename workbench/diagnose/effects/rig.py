@@ -11,7 +11,8 @@ import numpy as np
 from scipy import signal
 
 from workbench.contract.columns import WRENCH_CHANNELS
-from workbench.diagnose.library import Context, Effect, SearchParam, Terms
+from workbench.diagnose.effects.base import Context, Effect, SearchParam, Terms
+from workbench.diagnose.evidence import ccf_clause, flow_tone_peaks, peaks
 from workbench.hydro.motion import LegMotion
 
 SHORT = tuple(c.split("_")[0] for c in WRENCH_CHANNELS)  # fx, fy, fz, tx, ty, tz
@@ -45,6 +46,14 @@ class ServoLag(Effect):
     formula = "theta = theta_cmd / (1 + tau_s s), both joints"
     search = (SearchParam("tau_s", (0.005, 0.012, 0.02, 0.03, 0.04, 0.055, 0.075, 0.1, 0.14, 0.2), (0.0005, 0.4),
                           log=True),)
+    surrogate_ok = True
+
+    def on_output(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:
+        """A causal model's output through the same lag (first order in tau)."""
+        return lag_filter(w, nl["tau_s"], dt_s, axis=-2)
+
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        return ccf_clause(ev, "model_force_rate", "the rate of the model's force")
 
     def transform_motion(self, motion: LegMotion, nl: dict) -> LegMotion:  # noqa: D102
         tau, dt = nl["tau_s"], motion.dt_s
@@ -71,9 +80,18 @@ class TunnelBlockage(Effect):
     physical = False
     formula = "U_eff = U sqrt(1 + epsilon)"
     search = (SearchParam("epsilon", (-0.06, -0.02, 0.02, 0.05, 0.08, 0.12, 0.18, 0.3), (-0.5, 1.5)),)
+    surrogate_ok = True
+
+    def flow_factor(self, nl: dict) -> float:
+        """U_eff / U."""
+        return float(np.sqrt(max(1.0 + nl["epsilon"], 1e-6)))
+
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        worst = max(ev.by_flow, key=lambda k: float(k)) if ev.by_flow else None
+        return f"the misfit grows with flow speed (fy MSE {ev.by_flow[worst]['fy_n']:.3g} at {worst} m/s)" if worst else ""
 
     def transform_motion(self, motion: LegMotion, nl: dict) -> LegMotion:  # noqa: D102
-        f = float(np.sqrt(max(1.0 + nl["epsilon"], 1e-6)))
+        f = self.flow_factor(nl)
         return LegMotion(motion.dt_s, motion.theta_h_deg, motion.theta_k_deg, motion.omega_h_dps,
                          motion.omega_k_dps, motion.flow_speed_mps * f, motion.alpha_h_dps2, motion.alpha_k_dps2)
 
@@ -95,10 +113,80 @@ class FlowUnsteadiness(Effect):
     needs_peak = True
     step = 0.05
 
+    location_params = ("tone_hz", "rms_fraction")
+
     def gain(self, ctx: Context) -> np.ndarray:
         """The flow sensitivity g = U dM/dU by a centred difference (B, T, 6)."""
         h = self.step
         return (ctx.wrench_at_flow(1 + h) - ctx.wrench_at_flow(1 - h)) / (2 * h)
+
+    def run_gains(self, problem, config) -> list[np.ndarray]:
+        """Per run (index order, valid ticks): g = U dW/dU of the model on ``config``'s motion."""
+        out = {}
+        for rs in problem.campaign.sets:
+            ctx = problem.context(rs, config)
+            if ctx is None:
+                motion = rs.motion
+                for a in config.stage("input"):
+                    motion = a.effect.transform_motion(motion, a.nl)
+                ctx = Context(rs, problem.model, motion, problem.geometry)
+            # the model at the scaled flows is cached with the batch's context (an LSTM runs once per input)
+            g = self.gain(ctx)
+            if problem.lowpass is not None:
+                g = problem.lowpass(g, rs.dt_s, axis=-2)
+            for i in range(rs.shape[0]):
+                out[int(rs.index[i])] = g[i, rs.valid[i]]
+        return [out[k] for k in sorted(out)]
+
+    def proposals(self, probe, config, fit) -> list:
+        """Lines carried by the flow sensitivity first, then the residual's other narrowband lines."""
+        rr = probe.residuals(config, fit)
+        carried = flow_tone_peaks(rr, self.run_gains(probe.problem, config), probe.problem.weights,
+                                  probe.settings.evidence, probe.cutoff)
+        out = list(carried)
+        for p in probe.peaks_of(config, fit):
+            if all(abs(p.frequency_hz - q.frequency_hz) > 0.1 for q in out):
+                out.append(p)
+        return out
+
+    def check(self, cand, probe, config, fit) -> str | None:
+        """A flow-borne tone is absent at zero flow and removes most of its line (an electrical line stays)."""
+        f0 = cand.active.nl["tone_hz"]
+        s = probe.settings
+        rr = probe.residuals(config, fit)
+        zero = [r for r in rr if abs(r.flow) < 1e-9]
+        if len(zero) >= 2:
+            hit = [p for p in peaks(zero, s.evidence, probe.cutoff) if abs(p.frequency_hz - f0) < 0.1]
+            if hit:
+                return (f"the {f0:.2f} Hz line is there at zero flow too ({', '.join(hit[0].channels)}): "
+                        "not carried by the flow")
+        after = probe.run_residuals(cand.config, cand.fit)
+        left = [p for p in peaks(after, s.evidence, probe.cutoff) if abs(p.frequency_hz - f0) < 0.1]
+        if not left:
+            return None
+        # a flow-borne tone removes most of its line; an electrical line or a vibration stays put.
+        # The model's flow sensitivity is only as good as the model, so a remnant may stay.
+        def excess(pk) -> float:
+            return sum(max(v - 1.0, 0.0) for c, v in pk.ratio.items() if c in pk.channels)
+
+        before = [p for p in peaks(rr, s.evidence, probe.cutoff) if abs(p.frequency_hz - f0) < 0.1]
+        eb = max((excess(p) for p in before), default=0.0)
+        ea = max(excess(p) for p in left)
+        if eb <= 0 or ea > s.selection.tone_line_left * eb:
+            return (f"a flow-borne tone leaves the {f0:.2f} Hz line in {', '.join(left[0].channels)} "
+                    f"({ea:.0f} of {eb:.0f} excess power ratio)")
+        return None
+
+    def complete(self, params: dict, stderr: dict, problem, config, residuals: list) -> None:
+        """The noise part's RMS, from how the final residual variance grows with g^2."""
+        params["rms_fraction"], stderr["rms_fraction"] = flow_noise_rms(
+            residuals, self.run_gains(problem, config), problem.weights)
+
+    def explained_frequencies(self, params: dict) -> list[float]:  # noqa: D102
+        return [params["tone_hz"]] if params.get("tone_hz") is not None else []
+
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        return f"a tone at {params.get('tone_hz', float('nan')):.2f} Hz rides on the flow sensitivity of the force"
 
     def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
         g = self.gain(ctx)
@@ -114,8 +202,9 @@ class FlowUnsteadiness(Effect):
         params = {"tone_hz": nl["tone_hz"], "tone_fraction": float("nan"), "rms_fraction": None}
         se = {"tone_hz": float(np.sqrt(max(cov.get(("tone_hz", "tone_hz"), np.nan), 0)))}
         if local:
-            a, wa = local["tone_sin"]
-            b, _ = local["tone_cos"]
+            a, wa, flow = local["tone_sin"]
+            b, _, _ = local["tone_cos"]
+            wa = np.where(flow > 0, wa, 0.0)  # runs without flow carry no tone
             amp = np.hypot(a, b)
             ok = np.isfinite(amp) & (wa > 0)
             if ok.any():
@@ -185,6 +274,18 @@ class StructuralResonance(Effect):
     # 2-D refinement of frequency and damping from the best point
     search = (SearchParam("f_n_hz", tuple(np.round(np.arange(1.0, 8.01, 0.25), 2)), (0.5, 12.0)),
               SearchParam("zeta", (0.12,), (0.005, 1.5), log=True))
+    location_params = ("f_n_hz", "zeta")
+
+    def refusal(self, params: dict, settings) -> str | None:
+        """A heavily damped mode is a delay in disguise (mount and sting modes are lightly damped)."""
+        zeta, limit = params.get("zeta"), getattr(settings, "max_mode_zeta", 0.3)
+        if isinstance(zeta, (int, float)) and zeta > limit:
+            return (f"zeta = {zeta:.2f} > {limit:g}: a heavily damped mode is a delay (servo or circulatory lag), "
+                    "not a mount mode")
+        return None
+
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        return ccf_clause(ev, "model_force_accel", "the second derivative of the model's force")
 
     def filter_wrench(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:  # noqa: D102
         return resonance_filter(w, dt_s, nl["f_n_hz"], nl["zeta"], axis=-2)
@@ -202,11 +303,34 @@ class LoadcellCrosstalk(Effect):
     stage = "sensor"
     physical = False
     prunable = True
+    reads_prediction = True
     formula = "W_read = (I + X) W, X off-diagonal"
 
     def __init__(self, pairs: list[tuple[int, int]] | None = None, aliases: dict[str, str] | None = None):
         self.pairs = pairs if pairs is not None else [(i, j) for i in range(6) for j in range(6) if i != j]
         self.aliases = dict(aliases or {})
+
+    def options(self) -> dict:  # noqa: D102
+        return {"pairs": [list(p) for p in self.pairs], "aliases": dict(self.aliases)}
+
+    @classmethod
+    def from_options(cls, options: dict | None = None) -> "LoadcellCrosstalk":  # noqa: D102
+        opts = dict(options or {})
+        if "pairs" in opts:
+            opts["pairs"] = [tuple(p) for p in opts["pairs"]]
+        return cls(**opts)
+
+    def configure(self, sample) -> "LoadcellCrosstalk":
+        """Only the entries this campaign can identify (:meth:`configured` on the base model's prediction)."""
+        prediction, mask = sample()
+        return self.configured(prediction, mask)
+
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        return ccf_clause(ev, "model_force", "the model's force in another channel")
+
+    def notes(self, coefs: dict[str, float]) -> list[str]:  # noqa: D102
+        return [f"{k} stands for {k}{self.aliases[k]} (proportional sources in this model)"
+                for k in coefs if k in self.aliases]
 
     @staticmethod
     def entry(to: int, frm: int) -> str:
@@ -239,7 +363,7 @@ class LoadcellCrosstalk(Effect):
                         aliases[self.entry(i, dup)] = (aliases.get(self.entry(i, dup), "")
                                                        + f" + {ratio:.4g} {self.entry(i, j)}")
         pairs = [(i, j) for j in sorted(keep) for i in range(6) if i != j]
-        return LoadcellCrosstalk(pairs, aliases)
+        return type(self)(pairs, aliases)
 
     def sensor_terms(self, ctx: Context, nl: dict, prediction: np.ndarray) -> Terms:  # noqa: D102
         names, cols, sup = [], [], []
@@ -263,6 +387,10 @@ class SensorDrift(Effect):
     prunable = True
     formula = "W_read += rate * t, t since the first trigger edge"
 
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        c = max(WRENCH_CHANNELS, key=lambda k: abs(ev.trend[k]["t"]))
+        return f"the residual trends with time in the run ({c}: {ev.trend[c]['slope']:.3g}/s, t = {ev.trend[c]['t']:.1f})"
+
     @staticmethod
     def entry(c: int) -> str:
         """Parameter name for channel ``c``."""
@@ -285,4 +413,42 @@ class SensorDrift(Effect):
         return Terms(names, cols, sup)
 
 
-RIG_EFFECTS = (ServoLag, TunnelBlockage, FlowUnsteadiness, StructuralResonance, LoadcellCrosstalk, SensorDrift)
+EFFECTS = (ServoLag, TunnelBlockage, FlowUnsteadiness, StructuralResonance, LoadcellCrosstalk, SensorDrift)
+
+
+def flow_noise_rms(runs, gains, weights) -> tuple[float | None, float]:
+    """RMS of the flow's unpredictable fluctuation, from how the residual variance grows with g^2.
+
+    With ``U(t) = U (1 + n(t))`` the residual holds ``g n`` (``g = U dF/dU``), so within a run
+    ``r_c^2 = a_c + rms^2 g_c^2`` on average; per-run intercepts absorb each run's bias and noise
+    level. Channels are pooled with their precision. None when no run has flow.
+    """
+    terms = []
+    for run, g in zip(runs, gains, strict=False):
+        if run.flow <= 0 or run.fit.sum() < 16:
+            continue
+        e2 = run.resid[run.fit] ** 2
+        g2 = g[run.fit] ** 2
+        x = g2 - g2.mean(axis=0)
+        y = e2 - e2.mean(axis=0)
+        for c in range(6):
+            sxx = float(x[:, c] @ x[:, c])
+            if sxx <= 0:
+                continue
+            terms.append((float(x[:, c] @ y[:, c]) / sxx, sxx, float(np.var(y[:, c])), c))
+    if not terms:
+        return None, float("nan")
+    by_c: dict[int, list] = {}
+    for b, sxx, vy, c in terms:
+        by_c.setdefault(c, []).append((b, sxx, vy))
+    num = den = 0.0
+    for rows in by_c.values():
+        sxx = sum(r[1] for r in rows)
+        b = sum(r[0] * r[1] for r in rows) / sxx
+        var_b = max(np.mean([r[2] for r in rows]), 1e-300) / sxx
+        num += b / var_b
+        den += 1 / var_b
+    b = num / den
+    rms = float(np.sqrt(max(b, 0.0)))
+    se_b = float(np.sqrt(1 / den))
+    return rms, (se_b / (2 * rms) if rms > 0 else float("nan"))

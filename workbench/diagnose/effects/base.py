@@ -1,0 +1,319 @@
+"""What an effect is: its stage in the chain, its terms, and every hook the loop asks it through.
+
+An :class:`Effect` is one physical mechanism the diagnosed model may lack, with the canonical
+name and parameters of the effect table (docs/diagnose.md). It acts at one *stage* of the
+chain from commanded motion to load-cell reading:
+
+``input``   changes the motion the model sees (servo lag);
+``force``   adds fluid or gravity loads: linear terms ``param * column`` computed from the
+            kinematics, a fixed term (circulatory lag), or per-run columns (flow tone);
+``filter``  passes the wrench through a linear filter (structural resonance);
+``sensor``  acts in the load cell: crosstalk between channels, drift.
+
+Linear parameters are fitted by weighted least squares on the columns; nonlinear ones (a time
+constant, a frequency) by a search that wraps the linear fit (:class:`SearchParam`). Effects
+name their terms readably (:meth:`Effect.get_feature_names`) and compose with ``+`` into an
+:class:`EffectLibrary`, the candidate set the selection draws from.
+
+Everything particular to one effect lives on its class: its constructor options
+(:meth:`Effect.options`, :attr:`Effect.library_options`), the evidence clause that points at it
+(:meth:`Effect.hint`), its configuration on the campaign (:meth:`Effect.configure`), its
+structural checks (:meth:`Effect.check`, :meth:`Effect.refusal`), the frequencies it proposes
+(:meth:`Effect.proposals`) and explains, how it acts on a model's output in a surrogate search
+(:meth:`Effect.on_output`, :meth:`Effect.flow_factor`). The loop, the selection and the problem
+ask these hooks and never an effect's name. This module imports no effect module (the effect
+modules import it; :mod:`workbench.diagnose.library` finds them through the plug-in table).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Callable
+
+import numpy as np
+
+from workbench.diagnose.evidence import locked_clause
+from workbench.hydro.motion import LegMotion
+
+STAGES = ("input", "force", "filter", "sensor")
+
+
+@dataclass(frozen=True)
+class SearchParam:
+    """A nonlinear parameter: its search grid (coarse, then refined within ``bounds``)."""
+
+    name: str
+    grid: tuple[float, ...]
+    bounds: tuple[float, float]
+    log: bool = False
+
+
+@dataclass
+class Terms:
+    """What an effect adds at its stage for one batch: linear columns, a fixed part, per-run columns.
+
+    Columns are wrenches ``(B, T, 6)`` of a unit parameter; ``support`` lists the channels in
+    which each column can be nonzero (crosstalk and drift touch one channel each).
+    """
+
+    names: list[str] = field(default_factory=list)
+    cols: list[np.ndarray] = field(default_factory=list)
+    support: list[np.ndarray] = field(default_factory=list)
+    fixed: np.ndarray | None = None
+    local_names: list[str] = field(default_factory=list)
+    local: list[np.ndarray] = field(default_factory=list)
+
+
+class Context:
+    """What effects see of one batch of runs under one configuration (motion after input effects)."""
+
+    def __init__(self, rs, model, motion: LegMotion, geometry, rho_kgpm3: float = 1000.0):
+        self.rs = rs
+        self.model = model
+        self.motion = motion
+        self.geometry = geometry
+        self.rho = rho_kgpm3
+        self._flow_cache: dict[float, np.ndarray] = {}
+
+    @property
+    def dt_s(self) -> float:
+        """Tick interval."""
+        return self.motion.dt_s
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """(B, T) time since the run's first trigger edge."""
+        return self.rs.time_s
+
+    @cached_property
+    def kin(self):
+        """Kinematics of the (transformed) motion."""
+        from workbench.diagnose.flowterms import LegKinematics
+
+        return LegKinematics(self.motion, self.geometry, self.rho)
+
+    @cached_property
+    def base(self) -> np.ndarray:
+        """The diagnosed model's wrench on the (transformed) motion."""
+        return np.asarray(self.model.wrench(self.motion), float)
+
+    def wrench_at_flow(self, factor: float) -> np.ndarray:
+        """The model's wrench with every flow speed scaled by ``factor`` (cached)."""
+        if factor == 1.0:
+            return self.base
+        if factor not in self._flow_cache:
+            m = self.motion
+            scaled = LegMotion(m.dt_s, m.theta_h_deg, m.theta_k_deg, m.omega_h_dps, m.omega_k_dps,
+                               m.flow_speed_mps * factor, m.alpha_h_dps2, m.alpha_k_dps2)
+            self._flow_cache[factor] = np.asarray(self.model.wrench(scaled), float)
+        return self._flow_cache[factor]
+
+
+ALL_CHANNELS = np.ones(6, bool)
+
+
+class Effect:
+    """Base class of candidate effects; subclasses set the class attributes and override the hooks they need."""
+
+    #: canonical snake_case name (the effect table)
+    name: str = ""
+    stage: str = "force"
+    #: part of the physical leg (kept in the model handed to the simulator); rig artefacts are not
+    physical: bool = True
+    #: the effect's formula in one line (report and docs)
+    formula: str = ""
+    #: nonlinear parameters found by search
+    search: tuple[SearchParam, ...] = ()
+    #: drop individually insignificant linear terms after selection (crosstalk entries, drift channels)
+    prunable: bool = False
+    #: needs a frequency proposed by the residual evidence (a narrowband peak) to be a candidate
+    needs_peak: bool = False
+    #: sensor columns read the predicted true wrench, so fits iterate the force coefficients (crosstalk)
+    reads_prediction: bool = False
+    #: canonical parameters that locate the effect rather than measure its size (their interval may hold zero)
+    location_params: tuple[str, ...] = ()
+    #: library settings (``pipelines/diagnose.yaml`` section ``library``) passed to the constructor: key -> keyword
+    library_options: dict[str, str] = {}
+    #: an input effect whose action on a causal model's output is known to first order
+    #: (:meth:`on_output`, :meth:`flow_factor`), so an expensive model's search may use the output
+    surrogate_ok: bool = False
+    #: physically plausible range of each canonical parameter (a fit outside absorbs something else)
+    ranges: dict[str, tuple[float, float]] = {}
+
+    # ------------------------------------------------------------------ composition
+    def __add__(self, other: "Effect | EffectLibrary") -> "EffectLibrary":
+        return EffectLibrary([self]) + other
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}()"
+
+    def get_feature_names(self) -> list[str]:
+        """Readable names of this effect's terms (``effect: formula``)."""
+        names = [f"{self.name}.{p}" for p in self.linear_names()]
+        names += [f"{self.name}.{s.name} (searched)" for s in self.search]
+        return [f"{n}  [{self.formula}]" for n in names] or [f"{self.name}  [{self.formula}]"]
+
+    def linear_names(self) -> list[str]:
+        """Names of the linear parameters (a crosstalk or drift effect lists every entry it may fit)."""
+        return []
+
+    def default_nl(self) -> dict[str, float]:
+        """Starting values of the nonlinear parameters."""
+        return {s.name: float(np.median(s.grid)) for s in self.search}
+
+    # -------------------------------------------------------------------- options
+    def options(self) -> dict:
+        """Constructor options (JSON-serialisable), so a saved model rebuilds the effect exactly."""
+        return {}
+
+    @classmethod
+    def from_options(cls, options: dict | None = None) -> "Effect":
+        """Build from :meth:`options` (as read back from JSON)."""
+        return cls(**dict(options or {}))
+
+    # ----------------------------------------------------------------- the chain
+    def transform_motion(self, motion: LegMotion, nl: dict) -> LegMotion:
+        """Input stage: the motion the leg really made."""
+        return motion
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:
+        """Force stage: linear columns, fixed part and per-run columns."""
+        return Terms()
+
+    def filter_wrench(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:
+        """Filter stage: the wrench (..., B, T, 6) through the effect (linear in ``w``)."""
+        return w
+
+    def sensor_terms(self, ctx: Context, nl: dict, prediction: np.ndarray) -> Terms:
+        """Sensor stage: columns that may depend on the predicted true wrench."""
+        return Terms()
+
+    def on_output(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:
+        """An input effect acting on a causal model's output ``w`` (..., T, 6) to first order (identity)."""
+        return w
+
+    def flow_factor(self, nl: dict) -> float:
+        """The factor an input effect puts on the flow speed the model sees (1: none)."""
+        return 1.0
+
+    # ---------------------------------------------------------------- the fit
+    def configure(self, sample: Callable[[], tuple[np.ndarray, np.ndarray]]) -> "Effect":
+        """The effect as fitted on this campaign, once before selection (itself by default).
+
+        ``sample()`` returns the base model's predicted wrench (B, T, 6) on a batch of training
+        runs and the mask of fitted ticks (B, T); it is computed only when an effect asks.
+        """
+        return self
+
+    def canonical_params(self, coefs: dict[str, float], nl: dict[str, float],
+                         cov: dict[tuple[str, str], float], local: dict | None = None) -> tuple[dict, dict]:
+        """Canonical parameters and their standard errors from the fitted values.
+
+        ``cov`` holds the covariance of linear and (linearised) nonlinear parameters by name
+        pair; ``local`` the per-run columns' values, information and flow speeds by name
+        (``(values, information, flow_mps)``, arrays over runs), None when the effect has none.
+        """
+        params = {**nl, **coefs}
+        se = {k: float(np.sqrt(max(cov.get((k, k), np.nan), 0.0))) if (k, k) in cov else float("nan")
+              for k in params}
+        return params, se
+
+    def implausible(self, params: dict) -> str | None:
+        """Why the fitted canonical parameters are not this effect (None when they are plausible)."""
+        for k, v in params.items():
+            rng = self.ranges.get(k) or next((r for pat, r in self.ranges.items()
+                                              if pat.endswith("*") and k.startswith(pat[:-1])), None)
+            if rng and v is not None and np.isfinite(v) and not rng[0] <= v <= rng[1]:
+                return f"{k} = {v:.3g} is outside the plausible range [{rng[0]:g}, {rng[1]:g}]"
+        return None
+
+    def refusal(self, params: dict, settings) -> str | None:
+        """Why these fitted values are another effect in disguise (None when they are not).
+
+        ``settings``: the selection settings (:class:`~workbench.diagnose.selection.SelectionSettings`).
+        """
+        return None
+
+    def null_variants(self, nl: dict) -> list[dict]:
+        """Parameter values that should explain nothing (the null of per-run nuisance fits)."""
+        return []
+
+    # ------------------------------------------------------------- the evidence
+    def hint(self, ev, params: dict) -> str:
+        """The clause of residual evidence (:class:`~workbench.diagnose.evidence.Evidence`) that points here."""
+        return locked_clause(ev)
+
+    def proposals(self, probe, config, fit) -> list:
+        """Frequencies (evidence peaks) a ``needs_peak`` effect is tried at: the residual's narrowband lines.
+
+        ``probe``: the loop's view of the residuals (:class:`~workbench.diagnose.loop.Probe`).
+        """
+        return probe.peaks_of(config, fit)
+
+    def check(self, cand, probe, config, fit) -> str | None:
+        """A structural check of a fitted candidate against the evidence (None: it passes)."""
+        return None
+
+    def complete(self, params: dict, stderr: dict, problem, config, residuals: list) -> None:
+        """Fill canonical parameters only the final residuals tell (in place); nothing by default."""
+
+    def explained_frequencies(self, params: dict) -> list[float]:
+        """Residual lines this claimed effect accounts for (not reported as unexplained)."""
+        return []
+
+    def notes(self, coefs: dict[str, float]) -> list[str]:
+        """Remarks on the fitted parameters for the report (what an entry stands for)."""
+        return []
+
+
+class EffectLibrary:
+    """A composable set of candidate effects (``a + b + c``)."""
+
+    def __init__(self, effects: list[Effect] | None = None):
+        self.effects: list[Effect] = list(effects or [])
+        names = [e.name for e in self.effects]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            from workbench.errors import ModelError
+
+            raise ModelError(f"effect library lists {sorted(dup)} twice")
+
+    def __add__(self, other: "Effect | EffectLibrary") -> "EffectLibrary":
+        extra = other.effects if isinstance(other, EffectLibrary) else [other]
+        return EffectLibrary(self.effects + list(extra))
+
+    def __iter__(self):
+        return iter(self.effects)
+
+    def __len__(self) -> int:
+        return len(self.effects)
+
+    def __getitem__(self, name: str) -> Effect:
+        for e in self.effects:
+            if e.name == name:
+                return e
+        raise KeyError(name)
+
+    def names(self) -> list[str]:
+        """Effect names in library order."""
+        return [e.name for e in self.effects]
+
+    def get_feature_names(self) -> list[str]:
+        """Every term of every effect, readable."""
+        return [n for e in self.effects for n in e.get_feature_names()]
+
+    def without(self, *names: str) -> "EffectLibrary":
+        """The library less some effects."""
+        return EffectLibrary([e for e in self.effects if e.name not in names])
+
+    def configured(self, sample: Callable[[], tuple[np.ndarray, np.ndarray]]) -> "EffectLibrary":
+        """Every effect configured on the campaign (:meth:`Effect.configure`), ``sample`` computed at most once."""
+        memo: list = []
+
+        def once():
+            if not memo:
+                memo.append(sample())
+            return memo[0]
+
+        return EffectLibrary([e.configure(once) for e in self.effects])
