@@ -185,6 +185,93 @@ class SurrogateContext(Context):
         return self._flow_cache[factor]
 
 
+def _context(model, rs, inputs: list[Active], geometry, cache: dict, surrogate: bool):
+    """The batch's effect context under the input effects (cached), and its cache key."""
+    in_key = _key(inputs)
+    if surrogate:
+        in_key = (("~lagged-output",),) + in_key
+    ctx = cache.get(("ctx", in_key))
+    recent = cache.setdefault(("recent",), [])
+    if in_key in recent:
+        recent.remove(in_key)
+    recent.append(in_key)
+    if ctx is not None:
+        return ctx, in_key
+    # keep the model's output for the last few input configurations: a search over a servo lag
+    # visits new ones, and the step's other candidates come back to the current one (an
+    # expensive model, such as a windowed LSTM, is then not run again); the plain motion's
+    # output stays (lagged-output surrogates are made from it), surrogates go first
+    plain_key = _key([])
+    _evict(cache, recent, plain_key)
+    motion = rs.motion
+    for a in inputs:
+        motion = a.effect.transform_motion(motion, a.nl)
+    if surrogate:
+        plain = cache.get(("ctx", plain_key))
+        if plain is None:
+            plain = Context(rs, model, rs.motion, geometry)
+            _add_flow_offset(plain, getattr(rs, "flow_offset", None))
+            cache[("ctx", plain_key)] = plain
+            recent.insert(0, plain_key)
+        ctx = SurrogateContext(rs, model, motion, geometry, plain, inputs)
+    else:
+        ctx = Context(rs, model, motion, geometry)
+    _add_flow_offset(ctx, getattr(rs, "flow_offset", None))
+    cache[("ctx", in_key)] = ctx
+    return ctx, in_key
+
+
+def _evict(cache: dict, recent: list, plain_key: tuple) -> None:
+    """Forget the oldest input configurations beyond the last ``_KEEP_INPUTS`` (surrogates first)."""
+    while len(recent) > _KEEP_INPUTS:
+        spare = [k for k in recent[:-1] if k != plain_key]
+        if not spare:
+            break
+        old = next((k for k in spare if k and k[0] == ("~lagged-output",)), spare[0])
+        recent.remove(old)
+        for k in [k for k in cache if k[0] in ("ctx", "term", "base", "offset") and k[1] == old]:
+            del cache[k]
+
+
+def _base(ctx: Context, rs, inputs: list[Active], in_key: tuple, cache: dict, lp) -> np.ndarray:
+    """The model's low-passed wrench on the transformed motion, plus a known offset (``--reference``)."""
+    if ("base", in_key) not in cache:
+        cache[("base", in_key)] = lp(ctx.base)
+    base = cache[("base", in_key)].copy()
+    offset = getattr(rs, "offset", None)
+    if offset is not None:
+        # a known part of the true wrench the model lacks (``--reference``: the base model's misfit
+        # on the reference campaign), already in the low-passed domain; filters and sensors see it,
+        # and an input effect acts on it as on a model's output (a servo lag delays it, first order)
+        okey = ("offset", in_key)
+        if okey not in cache:
+            o = offset
+            for a in inputs:
+                o = a.effect.on_output(o, ctx.dt_s, a.nl)
+            cache[okey] = o
+        base += cache[okey]
+    return base
+
+
+def _force_terms(a: Active, ctx: Context, in_key: tuple, cache: dict, lp) -> tuple:
+    """One force effect's terms, low-passed once per motion and parameter value (the filter is linear)."""
+    tkey = ("term", in_key, a.name, _key([a])[0][1])
+    if tkey not in cache:
+        olds = [k for k in cache if k[0] == "term" and k[2] == a.name]
+        for k in olds[:-1]:
+            del cache[k]
+        t = a.effect.force_terms(ctx, a.nl)
+        stack = [x for x in (t.fixed, *t.cols, *t.local) if x is not None]
+        stack = list(lp(np.stack(stack))) if stack else []
+        fixed = stack.pop(0) if t.fixed is not None else None
+        cache[tkey] = (t.names, stack[:len(t.cols)], t.support, fixed, t.local_names, stack[len(t.cols):])
+    return cache[tkey]
+
+
+def _keep(qualified: str, only: set[str] | None) -> bool:
+    return only is None or qualified in only
+
+
 def build_design(model, rs, config: Configuration, coefs: dict[str, float] | None = None,
                  lowpass: Lowpass | None = None, geometry=DEFAULT_GEOMETRY,
                  only: set[str] | None = None, cache: dict | None = None, surrogate: bool = False) -> Design:
@@ -195,7 +282,7 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
     ``only`` restricts the linear columns kept (others are dropped, not folded in). ``cache``
     (a dict owned by the caller, one per batch) keeps the model and force-stage results of the
     last configurations, so a search over a filter or a sensor parameter does not redo them.
-    ``surrogate``: servo lags and blockage act on the model's output instead of its input
+    ``surrogate``: input effects that allow it act on the model's output instead of its input
     (:class:`SurrogateContext`), for searches with an expensive model.
     The ingest's low-pass is applied after the force stage; the filter stage and the sensor
     stage are linear and time-invariant per channel, so the order does not change the result.
@@ -204,87 +291,24 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
     cache = {} if cache is None else cache
     inputs = config.stage("input")
     surrogate = surrogate and bool(inputs) and all(a.effect.surrogate_ok for a in inputs)
-    in_key = _key(inputs)
-    if surrogate:
-        in_key = (("~lagged-output",),) + in_key
-    ctx = cache.get(("ctx", in_key))
-    recent = cache.setdefault(("recent",), [])
-    if in_key in recent:
-        recent.remove(in_key)
-    recent.append(in_key)
-    if ctx is None:
-        # keep the model's output for the last few input configurations: a search over a servo lag
-        # visits new ones, and the step's other candidates come back to the current one (an
-        # expensive model, such as a windowed LSTM, is then not run again); the plain motion's
-        # output stays (lagged-output surrogates are made from it), surrogates go first
-        plain_key = _key([])
-        while len(recent) > _KEEP_INPUTS:
-            spare = [k for k in recent[:-1] if k != plain_key]
-            if not spare:
-                break
-            old = next((k for k in spare if k and k[0] == ("~lagged-output",)), spare[0])
-            recent.remove(old)
-            for k in [k for k in cache if k[0] in ("ctx", "term", "base", "offset") and k[1] == old]:
-                del cache[k]
-        motion = rs.motion
-        for a in inputs:
-            motion = a.effect.transform_motion(motion, a.nl)
-        if surrogate:
-            plain = cache.get(("ctx", plain_key))
-            if plain is None:
-                plain = Context(rs, model, rs.motion, geometry)
-                _add_flow_offset(plain, getattr(rs, "flow_offset", None))
-                cache[("ctx", plain_key)] = plain
-                recent.insert(0, plain_key)
-            ctx = SurrogateContext(rs, model, motion, geometry, plain, inputs)
-        else:
-            ctx = Context(rs, model, motion, geometry)
-        _add_flow_offset(ctx, getattr(rs, "flow_offset", None))
-        cache[("ctx", in_key)] = ctx
+    ctx, in_key = _context(model, rs, inputs, geometry, cache, surrogate)
 
     def lp(x: np.ndarray) -> np.ndarray:
         return lowpass(x, ctx.dt_s, axis=-2) if lowpass is not None else x
 
-    if ("base", in_key) not in cache:
-        cache[("base", in_key)] = lp(ctx.base)
-    base = cache[("base", in_key)].copy()
-    offset = getattr(rs, "offset", None)
-    if offset is not None:
-        # a known part of the true wrench the model lacks (``--reference``: the base model's misfit
-        # on the reference campaign), already in the low-passed domain; filters and sensors see it,
-        # and a servo lag delays it as it delays the motion (first order in the lag)
-        okey = ("offset", in_key)
-        if okey not in cache:
-            o = offset
-            for a in config.stage("input"):
-                o = a.effect.on_output(o, ctx.dt_s, a.nl)
-            cache[okey] = o
-        base += cache[okey]
+    base = _base(ctx, rs, inputs, in_key, cache, lp)
     names, cols, sup, lnames, lcols = [], [], [], [], []
     for a in config.stage("force"):
-        # each term is low-passed once per motion and parameter value (the filter is linear)
-        tkey = ("term", in_key, a.name, _key([a])[0][1])
-        if tkey not in cache:
-            olds = [k for k in cache if k[0] == "term" and k[2] == a.name]
-            for k in olds[:-1]:
-                del cache[k]
-            t = a.effect.force_terms(ctx, a.nl)
-            stack = [x for x in (t.fixed, *t.cols, *t.local) if x is not None]
-            stack = list(lp(np.stack(stack))) if stack else []
-            fixed = stack.pop(0) if t.fixed is not None else None
-            cache[tkey] = (t.names, stack[:len(t.cols)], t.support, fixed, t.local_names, stack[len(t.cols):])
-        t_names, t_cols, t_sup, fixed, t_lnames, t_local = cache[tkey]
+        t_names, t_cols, t_sup, fixed, t_lnames, t_local = _force_terms(a, ctx, in_key, cache, lp)
         if fixed is not None:
             base += fixed
         for n, c, sp in zip(t_names, t_cols, t_sup, strict=False):
-            q = f"{a.name}.{n}"
-            if only is None or q in only:
-                names.append(q)
+            if _keep(f"{a.name}.{n}", only):
+                names.append(f"{a.name}.{n}")
                 cols.append(c)
                 sup.append(np.asarray(sp, bool))
-        for n, c in zip(t_lnames, t_local, strict=False):
-            lnames.append(f"{a.name}.{n}")
-            lcols.append(c)
+        lnames += [f"{a.name}.{n}" for n in t_lnames]
+        lcols += list(t_local)
     if config.stage("filter"):
         # the same stack object for the same force stage: a mode search reuses its interpolation
         skey = ("stack", in_key, _key(config.stage("force")), None if only is None else tuple(sorted(only)))
@@ -293,15 +317,9 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
                 del cache[k]
             cache[skey] = np.stack([base, *cols, *lcols])
         stack = cache[skey]
-    else:
-        stack = [base, *cols, *lcols]
-    hit = (ctx, stack, names, sup, lnames)
-    ctx, stack, names, sup, lnames = hit
-    for a in config.stage("filter"):
-        stack = a.effect.filter_wrench(stack, ctx.dt_s, a.nl)
-    base = stack[0]
-    cols = list(stack[1:1 + len(names)])
-    lcols = list(stack[1 + len(names):])
+        for a in config.stage("filter"):
+            stack = a.effect.filter_wrench(stack, ctx.dt_s, a.nl)
+        base, cols, lcols = stack[0], list(stack[1:1 + len(names)]), list(stack[1 + len(names):])
     prediction = base.copy()
     for n, c in zip(names, cols, strict=False):
         v = coefs.get(n, 0.0)
@@ -309,10 +327,9 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
             prediction += v * c
     for a in config.stage("sensor"):
         t = a.effect.sensor_terms(ctx, a.nl, prediction)
-        for n, c, s in zip(t.names, t.cols, t.support, strict=False):
-            q = f"{a.name}.{n}"
-            if only is None or q in only:
-                names.append(q)
+        for n, c, sp in zip(t.names, t.cols, t.support, strict=False):
+            if _keep(f"{a.name}.{n}", only):
+                names.append(f"{a.name}.{n}")
                 cols.append(c)
-                sup.append(np.asarray(s, bool))
+                sup.append(np.asarray(sp, bool))
     return Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)

@@ -315,60 +315,11 @@ class StepwiseSelection:
         library = library.configured(lambda: self._sample(problem))
         for _ in range(s.max_effects):
             remaining = [e for e in library if e.name not in config.names()]
-            linear = [e for e in remaining if not e.search and not e.needs_peak]
-            cands = self._linear_candidates(problem, config, coefs, names, linear)
-            for e in remaining:
-                if e.needs_peak:
-                    peaks = peaks_of(e, config, current) if peaks_of is not None else []
-                    strongest = sorted(peaks, key=lambda p: -max(p.ratio.values(), default=0.0))[: s.max_peaks]
-                    for pk in strongest:
-                        cands.append(self._nonlinear_candidate(problem, config, coefs, names, e, pk))
-                elif e.search:
-                    # after the first step, start from the last optimum (the landscape moves little)
-                    c = self._nonlinear_candidate(problem, config, coefs, names, e, start=last_nl.get(e.name))
-                    last_nl[e.name] = dict(c.active.nl)
-                    cands.append(c)
-                if progress:
-                    progress(e.name)
+            cands = self._candidates(problem, config, coefs, names, remaining, current, peaks_of, last_nl, progress)
             if not cands:
                 break
-            # Bonferroni within two families: single effects (each tone peak counts) and pairs of
-            # linear effects (a pair must also beat its members alone by pair_margin); a library of
-            # 15 linear effects has 105 pairs, which would otherwise drown every single effect
-            n_pairs = sum(c.partner is not None for c in cands)
-            n_single = len(cands) - n_pairs
-            levels = {False: s.alpha / max(n_single, 1), True: s.alpha / max(n_pairs, 1)}
-            level = levels[False]
-            table = []
-            # entries of crosstalk and drift are chosen on the training runs before the held-out
-            # judgement: a drift fitted in six channels where one drifts would lose in the other five
-            cands = [self._prune(problem, c, coefs) if any(e.prunable for e in c.effects) else c for c in cands]
-            for c in cands:
-                self._assess(problem, c, coefs, current, config, levels[c.partner is not None], plausible)
-                table.append(_row(c))
-            single = {c.effect.name: c.test["llr"] for c in cands if c.partner is None}
-            for c in cands:
-                if c.partner is not None and c.ok:
-                    alone = max(single.get(c.effect.name, 0.0), single.get(c.partner.name, 0.0), 0.0)
-                    if c.test["llr"] < s.pair_margin * alone or alone == c.test["llr"]:
-                        c.ok = False
-                        c.note = f"no better than its members alone (x{s.pair_margin:g} needed)"
-                        table[cands.index(c)].update(ok=False, note=c.note)
-            ok = [c for c in cands if c.ok]
-            best = None
-            while ok:
-                best = max(ok, key=lambda c: c.test["llr"])
-                if not best.surrogate:
-                    break
-                # screened through the surrogate: the claim is judged with the model itself
-                best.fit = problem.fit(best.config, coefs, best.names, surrogate=False)
-                best.surrogate = False
-                self._assess(problem, best, coefs, current, config, level, plausible)
-                table[cands.index(best)] = _row(best)
-                if best.ok:
-                    break
-                ok.remove(best)
-                best = None
+            cands, table, level = self._judge_all(problem, cands, coefs, current, config, plausible)
+            best = self._pick(problem, cands, table, coefs, current, config, level, plausible)
             if best is None:
                 break
             mine = {e.name for e in best.effects}
@@ -388,6 +339,69 @@ class StepwiseSelection:
             config, current = self._refine(problem, config, coefs, names, current)
         config, names, current, steps = self._backward_check(problem, config, names, current, steps)
         return SelectionResult(config, names, current, steps, table)
+
+    def _candidates(self, problem, config, coefs, names, remaining, current, peaks_of, last_nl, progress):
+        """Every remaining effect fitted beside the chosen ones (linear ones also in pairs; tones at each line)."""
+        s = self.settings
+        linear = [e for e in remaining if not e.search and not e.needs_peak]
+        cands = self._linear_candidates(problem, config, coefs, names, linear)
+        for e in remaining:
+            if e.needs_peak:
+                peaks = peaks_of(e, config, current) if peaks_of is not None else []
+                strongest = sorted(peaks, key=lambda p: -max(p.ratio.values(), default=0.0))[: s.max_peaks]
+                for pk in strongest:
+                    cands.append(self._nonlinear_candidate(problem, config, coefs, names, e, pk))
+            elif e.search:
+                # after the first step, start from the last optimum (the landscape moves little)
+                c = self._nonlinear_candidate(problem, config, coefs, names, e, start=last_nl.get(e.name))
+                last_nl[e.name] = dict(c.active.nl)
+                cands.append(c)
+            if progress:
+                progress(e.name)
+        return cands
+
+    def _judge_all(self, problem, cands, coefs, current, config, plausible):
+        """Prune, judge every candidate on the held-out runs; returns (candidates, table, single-effect level)."""
+        s = self.settings
+        # Bonferroni within two families: single effects (each tone peak counts) and pairs of
+        # linear effects (a pair must also beat its members alone by pair_margin); a library of
+        # 15 linear effects has 105 pairs, which would otherwise drown every single effect
+        n_pairs = sum(c.partner is not None for c in cands)
+        n_single = len(cands) - n_pairs
+        levels = {False: s.alpha / max(n_single, 1), True: s.alpha / max(n_pairs, 1)}
+        table = []
+        # entries of crosstalk and drift are chosen on the training runs before the held-out
+        # judgement: a drift fitted in six channels where one drifts would lose in the other five
+        cands = [self._prune(problem, c, coefs) if any(e.prunable for e in c.effects) else c for c in cands]
+        for c in cands:
+            self._assess(problem, c, coefs, current, config, levels[c.partner is not None], plausible)
+            table.append(_row(c))
+        single = {c.effect.name: c.test["llr"] for c in cands if c.partner is None}
+        for c in cands:
+            if c.partner is not None and c.ok:
+                alone = max(single.get(c.effect.name, 0.0), single.get(c.partner.name, 0.0), 0.0)
+                if c.test["llr"] < s.pair_margin * alone or alone == c.test["llr"]:
+                    c.ok = False
+                    c.note = f"no better than its members alone (x{s.pair_margin:g} needed)"
+                    table[cands.index(c)].update(ok=False, note=c.note)
+        return cands, table, levels[False]
+
+    def _pick(self, problem, cands, table, coefs, current, config, level, plausible) -> Candidate | None:
+        """The accepted candidate with the largest held-out gain (surrogate fits are judged again with the model)."""
+        ok = [c for c in cands if c.ok]
+        while ok:
+            best = max(ok, key=lambda c: c.test["llr"])
+            if not best.surrogate:
+                return best
+            # screened through the surrogate: the claim is judged with the model itself
+            best.fit = problem.fit(best.config, coefs, best.names, surrogate=False)
+            best.surrogate = False
+            self._assess(problem, best, coefs, current, config, level, plausible)
+            table[cands.index(best)] = _row(best)
+            if best.ok:
+                return best
+            ok.remove(best)
+        return None
 
     def _assess(self, problem, c: Candidate, coefs, current, config, level: float, plausible) -> None:
         """Judge a candidate on the held-out runs and check every claim criterion (sets ``c.ok``, ``c.note``)."""
