@@ -94,6 +94,7 @@ def run(args) -> int:
     from workbench.console import info
     from workbench.errors import ContractError
     from workbench.gait.config import load_config
+    from workbench.gait.export import model_source, model_source_line
     from workbench.gait.optimize import optimize_task
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
@@ -105,16 +106,14 @@ def run(args) -> int:
         raise ContractError(str(exc), where="command line") from None
     ts = cfg.task(args.task)
     robot = load_robot(args.robot or cfg.robot, drag_json=args.drag or cfg.drag_json)
+    label = _label(args.label, args.model)
     model = load_leg_model(args.model)
     if "torch" in sys.modules:  # a learned leg model
         from workbench.threads import apply_torch_threads
 
         apply_torch_threads(cfg.torch_threads)
-    label = _label(args.label, args.model)
-    from workbench.learn.registry import provenance, provenance_line
-
-    source = provenance(model)
-    line = provenance_line(args.model, model)
+    source = model_source(model)  # the registry version (or folder) the spec resolved to
+    line = model_source_line(args.model, model)
     if line:
         info(line)
     info(f"optimising {args.task} gaits with leg model {args.model!r}: NSGA-II population {cfg.nsga2.pop_size}, "

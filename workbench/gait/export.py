@@ -45,6 +45,29 @@ def model_label(spec: str) -> str:
     return label or "model"
 
 
+def model_source(model) -> dict:
+    """Where a loaded leg model came from, from its ``describe()``: ``model_uri``, ``model_version``,
+    ``run_id`` (a registry spec, resolved) and ``model_path`` (a saved folder), those known; {} for built-ins."""
+    d = model.describe() if hasattr(model, "describe") else {}
+    return {k: str(d[k]) for k in ("model_uri", "model_version", "run_id", "model_path") if d.get(k) is not None}
+
+
+def model_source_line(spec: str, model) -> str | None:
+    """One line for people: the registry version (or the folder) ``spec`` resolved to; None for built-in models."""
+    p = model_source(model)
+    if p.get("model_version"):
+        uri = p.get("model_uri", spec)
+        name = uri[len("models:/"):].split("@")[0].split("/")[0] if uri.startswith("models:/") else uri
+        return (f"leg model {spec!r}: {uri} -> registered model {name} version {p['model_version']}"
+                + (f" (run {p['run_id']})" if p.get("run_id") else ""))
+    if p.get("model_path"):
+        return f"leg model {spec!r}: model folder {p['model_path']}" + (f" (trained in run {p['run_id']})"
+                                                                       if p.get("run_id") else "")
+    if p.get("model_uri"):
+        return f"leg model {spec!r}: {p['model_uri']}"
+    return None
+
+
 def gait_document(spec: TaskSpec, model: str, gaits: GaitBatch, f: np.ndarray, s: np.ndarray, *,
                   extra: Mapping[str, Any] | None = None, converged: np.ndarray | None = None,
                   gait_space: str = "paper") -> dict:

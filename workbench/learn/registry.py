@@ -11,8 +11,8 @@ A saved model folder (``model.json`` + ``weights.pt``, what ``workbench train --
 DVC tracks) also loads by its path: ``load_leg_model("datasets/models/fed-lstm-16")``. Pipeline
 stages name their model that way (issue 15.1): a path is a DVC dep, a registry alias is not.
 Whatever way a model was found, its ``describe()`` says where from: ``model_uri`` and
-``model_version`` (and ``run_id``) for the registry, ``model_path`` for a folder; see
-:func:`provenance` and :func:`provenance_line`.
+``model_version`` (and ``run_id``) for the registry, ``model_path`` for a folder (read by
+:func:`workbench.gait.export.model_source`).
 """
 
 from __future__ import annotations
@@ -72,28 +72,6 @@ def load_path(path: str | Path, **kwargs):
     if head.get("schema") != MODEL_SCHEMA:
         raise ModelError(f"unknown model schema {head.get('schema')!r}", path=spec, hint=f"expected {MODEL_SCHEMA}")
     return load_folder(p, model_path=str(path), **kwargs)
-
-
-def provenance(model) -> dict:
-    """Where a loaded leg model came from: ``model_uri``, ``model_version``, ``run_id``, ``model_path`` (those known)."""
-    d = model.describe() if hasattr(model, "describe") else {}
-    return {k: str(d[k]) for k in ("model_uri", "model_version", "run_id", "model_path") if d.get(k) is not None}
-
-
-def provenance_line(spec: str, model) -> str | None:
-    """One line for people: which registry version (or folder) ``spec`` resolved to; None for built-in models."""
-    p = provenance(model)
-    if p.get("model_version"):
-        uri = p.get("model_uri", spec)
-        name = uri[len("models:/"):].split("@")[0].split("/")[0] if uri.startswith("models:/") else uri
-        return (f"leg model {spec!r}: {uri} -> registered model {name} version {p['model_version']}"
-                + (f" (run {p['run_id']})" if p.get("run_id") else ""))
-    if p.get("model_path"):
-        return f"leg model {spec!r}: model folder {p['model_path']}" + (f" (trained in run {p['run_id']})"
-                                                                       if p.get("run_id") else "")
-    if p.get("model_uri"):
-        return f"leg model {spec!r}: {p['model_uri']}"
-    return None
 
 
 def load_model_uri(spec: str, *, tracking_uri: str | None = None):
