@@ -232,19 +232,36 @@ def sweep(folder: str | Path, target_name: str | None = None, *, now: float | No
     if target_name:
         legacy = re.compile(r"^\." + re.escape(target_name) + r"\.(?:[a-z0-9_]{8}(?:\..*)?|old-\d+)$")
     for e in entries:
+        if not e.name.startswith("."):
+            continue
         m = _OURS.match(e.name)
+        if not m and (legacy is None or not legacy.match(e.name)):
+            continue
         try:
             age = now - e.stat(follow_symlinks=False).st_mtime
         except OSError:
             continue
-        if m:
-            if not _alive(int(m.group("pid"))) or age > STALE_AFTER_S:
-                _remove(Path(e.path))
-                removed.append(Path(e.path))
-        elif legacy is not None and legacy.match(e.name) and age > LEGACY_STALE_AFTER_S:
+        if (m and (not _alive(int(m.group("pid"))) or age > STALE_AFTER_S)) or (not m and age > LEGACY_STALE_AFTER_S):
             _remove(Path(e.path))
             removed.append(Path(e.path))
     return removed
+
+
+_swept: set[str] = set()
+
+
+def _sweep_once(folder: Path, target_name: str) -> None:
+    """Sweep a folder once per process (a verb writing thousands of files into it scans it once).
+
+    Temporaries of the older naming are recognised for the first target written there.
+    """
+    key = os.path.abspath(folder)
+    if key in _swept:
+        return
+    _swept.add(key)
+    if len(_swept) > 10000:
+        _swept.clear()
+    sweep(folder, target_name)
 
 
 # -- files -----------------------------------------------------------------------------------------------
@@ -263,7 +280,7 @@ def atomic_path(target: str | Path, suffix: str | None = None) -> Iterator[Path]
     target = Path(target)
     check_not_raw(target)
     target.parent.mkdir(parents=True, exist_ok=True)
-    sweep(target.parent, target.name)
+    _sweep_once(target.parent, target.name)
     sfx = suffix or ".tmp"
     tmp_path = _tmp_name(target, "tmp", sfx[4:] if sfx.startswith(".tmp") else sfx)
     fd = os.open(tmp_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
