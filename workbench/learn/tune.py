@@ -6,7 +6,16 @@ processes on one machine), or any Optuna storage URL (``postgresql://...`` for a
 ``run_study`` creates or resumes the study, opens a parent MLflow run, and runs the trials in
 ``workers`` processes (``python -m workbench.learn.tune --worker SPEC``), each taking an exact
 share of ``n_trials`` so that no trial is lost or run twice; running the same command on another
-machine against the same storage adds its trials to the same study. Each trial is one
+machine against the same storage adds its trials to the same study.
+
+Several commands may share one study at once (on one machine or many): each command has an id
+(``command`` user attribute of its trials), counts and reports only its own trials ("trial 3/4"),
+and every trial draws its sampler seed from its own trial number (:mod:`workbench.learn.tune_storage`),
+so no two workers of any command repeat each other's draws. Workers record heartbeats; a trial
+whose worker died (SIGKILL, a lost machine) is failed and retried once, and the command restarts
+a worker that was killed for the trials it still owed. Workers die with the command (SIGINT,
+SIGTERM, even its SIGKILL: :mod:`workbench.procs`), and their specification travels on stdin, so
+nothing is left in the temp folder. Each trial is one
 ``train(cfg)`` call with fewer epochs and windows and no test scoring, a child MLflow run (pruned
 trials end KILLED), pruned on the validation loss by Optuna's median rule after
 ``n_warmup_steps`` epochs. The best
@@ -20,8 +29,8 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -53,6 +62,13 @@ class TuneCfg:
     alias: str = "tuned"
     #: MLflow experiment of the study's runs (None: the train section's tracking.experiment)
     experiment: str | None = None
+    #: seconds between a worker's heartbeats for its running trial
+    heartbeat_interval_s: int = 10
+    #: a RUNNING trial without a heartbeat for this long is failed (and retried); a dead worker on
+    #: this machine is noticed at once
+    grace_period_s: int = 120
+    #: retries of a trial whose worker died
+    max_retry: int = 1
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "TuneCfg":
@@ -64,19 +80,26 @@ class TuneCfg:
         return cls(**dict(d))
 
 
-def resolve_storage(storage: str | None, study: str):
-    """An Optuna storage: default journal file, a ``*.journal`` path, or an Optuna storage URL."""
-    import optuna
-    from optuna.storages import JournalStorage
+def resolve_storage(storage: str | None, study: str, tune: "TuneCfg | None" = None):
+    """An Optuna storage with heartbeats: default journal file, a ``*.journal`` path, or an Optuna storage URL.
+
+    Returns ``(storage, where)``; heartbeat interval, grace period and retries from ``tune``.
+    """
     from optuna.storages.journal import JournalFileBackend, JournalFileOpenLock
 
+    from workbench.learn.tune_storage import HeartbeatJournalStorage, HeartbeatRDBStorage, retry_callback
     from workbench.project import project_root
+
+    tune = tune or TuneCfg()
+    beat = {"heartbeat_interval": max(1, int(tune.heartbeat_interval_s)),
+            "grace_period": max(int(tune.grace_period_s), 2 * int(tune.heartbeat_interval_s))}
 
     if storage is None or storage.endswith(".journal") or storage.startswith("journal:"):
         path = Path(storage.removeprefix("journal:") if storage else project_root() / ".optuna" / f"{study}.journal")
         path.parent.mkdir(parents=True, exist_ok=True)
         # open()-based lock: works on local disks and NFS alike, no symlink permissions needed
-        return JournalStorage(JournalFileBackend(str(path), lock_obj=JournalFileOpenLock(str(path)))), str(path)
+        return HeartbeatJournalStorage(JournalFileBackend(str(path), lock_obj=JournalFileOpenLock(str(path))), **beat,
+                                       stale_trial_callback=retry_callback(tune.max_retry)), str(path)
     if "://" not in storage:
         raise ContractError(f"storage {storage!r} is neither a .journal file nor a storage URL",
                             hint="e.g. .optuna/study.journal or postgresql://user@host/db")
@@ -87,7 +110,9 @@ def resolve_storage(storage: str | None, study: str):
 
     from workbench.learn.tracking import retry_race
 
-    return retry_race(lambda: optuna.storages.RDBStorage(storage), (IntegrityError, ProgrammingError)), storage
+    return retry_race(lambda: HeartbeatRDBStorage(storage, **beat,
+                                                  heartbeat_stale_trial_callback=retry_callback(tune.max_retry)),
+                      (IntegrityError, ProgrammingError)), storage
 
 
 def suggest(trial, space: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
@@ -132,7 +157,8 @@ def _prepared(base: LearnConfig, need_ef: bool):
     return _CACHE[key]
 
 
-def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run_id: str | None, worker: int = 0):
+def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run_id: str | None, worker: int = 0,
+                   command: str | None = None):
     """The Optuna objective: train one trial configuration, return its best validation loss."""
     from optuna_integration import PyTorchLightningPruningCallback
 
@@ -141,7 +167,13 @@ def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run
     variants = tune.space.get("variant", {}).get("choices", [base.model.variant])
     need_ef = "ef_residual" in variants or base.model.variant == "ef_residual"
 
+    from workbench.learn.tune_storage import trial_seed
+
     def objective(trial) -> float:
+        # who runs this trial: progress and summaries count a command's own trials only
+        trial.set_user_attr("command", command)
+        trial.set_user_attr("worker", worker)
+        trial.set_user_attr("sampler_seed", trial_seed(tune.sampler_seed, trial.number))
         params = suggest(trial, tune.space)
         cfg = trial_config(base, tune, params, study_name, trial.number)
         metrics, objects = train(cfg, prepared=_prepared(base, need_ef),
@@ -156,14 +188,33 @@ def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run
     return objective
 
 
-def _progress_callback(total: int, baseline: set[int], report: Callable[[str], None], tag: str):
+def command_trials(trials, command: str | None, baseline: set[int] = frozenset()) -> list:
+    """The trials a command ran (its ``command`` user attribute; without an id: those not in ``baseline``)."""
+    if command is None:
+        return [t for t in trials if t.number not in baseline]
+    return [t for t in trials if t.user_attrs.get("command") == command]
+
+
+def finished_trials(trials) -> list:
+    """COMPLETE, PRUNED or FAIL trials, less failed ones that were retried (their retry counts instead)."""
     import optuna
 
-    finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED, optuna.trial.TrialState.FAIL)
+    from workbench.learn.tune_storage import retried_numbers
+
+    S = optuna.trial.TrialState
+    retried = retried_numbers(trials)
+    return [t for t in trials if t.state in (S.COMPLETE, S.PRUNED, S.FAIL)
+            and not (t.state == S.FAIL and t.number in retried)]
+
+
+def _progress_callback(total: int, baseline: set[int], report: Callable[[str], None], tag: str,
+                       command: str | None = None):
+    import optuna
 
     def callback(study, trial):
-        trials = study.get_trials(deepcopy=False, states=finished)
-        done = sum(1 for t in trials if t.number not in baseline)
+        everything = study.get_trials(deepcopy=False)
+        trials = finished_trials(everything)
+        done = len(command_trials(trials, command, baseline))
         complete = [t for t in trials if t.state == optuna.trial.TrialState.COMPLETE]
         best = min(complete, key=lambda t: t.value) if complete else None
         state = trial.state.name.lower()
@@ -205,15 +256,20 @@ def run_worker(spec: Mapping[str, Any], report: Callable[[str], None] | None = N
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     base = config_from_dict(spec["config"])
     tune = TuneCfg.from_dict(spec["tune"])
-    storage, _ = resolve_storage(spec["storage"], spec["study"])
-    sampler = optuna.samplers.TPESampler(seed=tune.sampler_seed + 1000 * int(spec["worker"]))
+    from workbench.learn.tune_storage import TrialSeededTPE
+
+    storage, _ = resolve_storage(spec["storage"], spec["study"], tune)
+    # seeded per trial number: distinct across workers and commands; the constant liar keeps
+    # concurrent workers from proposing the same point while a trial runs
+    sampler = TrialSeededTPE(tune.sampler_seed, constant_liar=True)
     pruner = make_pruner(tune.pruner)
     study = optuna.load_study(study_name=spec["study"], storage=storage, sampler=sampler, pruner=pruner)
     if spec.get("tracking_uri"):
         os.environ["MLFLOW_TRACKING_URI"] = spec["tracking_uri"]
-    objective = make_objective(base, tune, spec["study"], spec.get("parent_run_id"), int(spec["worker"]))
+    objective = make_objective(base, tune, spec["study"], spec.get("parent_run_id"), int(spec["worker"]),
+                               spec.get("command"))
     tag = f" [worker {spec['worker']}]" if spec.get("n_workers", 1) > 1 else ""
-    cbs = [_progress_callback(spec["total"], set(spec["baseline"]), report, tag)] if report else []
+    cbs = [_progress_callback(spec["total"], set(spec["baseline"]), report, tag, spec.get("command"))] if report else []
     study.optimize(objective, n_trials=int(spec["n_trials"]), catch=(Exception,), callbacks=cbs,
                    gc_after_trial=False)
 
@@ -226,15 +282,20 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
 
     from workbench.learn.tracking import run_tags, setup
 
+    from workbench import procs
+
+    procs.install()  # SIGTERM/SIGHUP clean up as Ctrl-C does: workers stopped, trials failed, runs ended
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     if tune.workers > 1 and base.trainer.torch_threads == AUTO:
         # the idle cores are shared out among the worker processes, not claimed by each of them
         base = base.with_overrides({"trainer.torch_threads": max(1, idle_cores() // tune.workers)})
-    storage, where = resolve_storage(tune.storage, tune.study)
+    storage, where = resolve_storage(tune.storage, tune.study, tune)
     if fresh and tune.study in optuna.get_all_study_names(storage):
         optuna.delete_study(study_name=tune.study, storage=storage)
     study = optuna.create_study(study_name=tune.study, storage=storage, direction="minimize", load_if_exists=True)
     baseline = [t.number for t in study.get_trials(deepcopy=False)]
+    command = uuid.uuid4().hex[:12]
+    _fail_stale(study)  # trials of workers that died earlier: failed (and queued again) now
     if report:
         report(f"study {tune.study!r} in {where}: {len(baseline)} earlier trial(s); running {tune.n_trials} "
                f"in {tune.workers} worker process(es)")
@@ -254,14 +315,16 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
     try:
         spec = {"config": base.to_dict(), "tune": _tune_dict(tune), "storage": where, "study": tune.study,
                 "parent_run_id": parent_id, "tracking_uri": tracking_uri, "total": tune.n_trials,
-                "baseline": baseline, "n_workers": tune.workers}
+                "baseline": baseline, "n_workers": tune.workers, "command": command}
         t0 = time.perf_counter()
         if tune.workers <= 1:
             run_worker({**spec, "worker": 0, "n_trials": tune.n_trials}, report)
         else:
-            _spawn_workers(spec, tune, report)
+            _spawn_workers(spec, tune, report, study)
         elapsed = time.perf_counter() - t0
-        summary = summarise(optuna.load_study(study_name=tune.study, storage=storage), set(baseline), elapsed)
+        _fail_stale(study)
+        summary = summarise(optuna.load_study(study_name=tune.study, storage=storage), set(baseline), elapsed,
+                            command=command)
         summary["storage"] = where
         if summary["best"] is None:
             raise StageError(f"study {tune.study!r}: no trial completed; first failure: {summary['first_failure']}")
@@ -276,6 +339,9 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
             write_outputs(summary, out_dir)
         status = "FINISHED"
         return summary
+    except KeyboardInterrupt:
+        status = "KILLED"
+        raise
     finally:
         if parent_id is not None:
             mlflow.end_run(status=status)
@@ -299,43 +365,107 @@ def _tune_dict(tune: TuneCfg) -> dict:
     return {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in tune.__dict__.items()}
 
 
-def _spawn_workers(spec: dict, tune: TuneCfg, report: Callable[[str], None] | None) -> None:
-    """Start the worker processes with an exact share of the trials each, relay their lines, wait for all."""
-    procs, files = [], []
-    share = [tune.n_trials // tune.workers + (1 if i < tune.n_trials % tune.workers else 0) for i in range(tune.workers)]
+def _fail_stale(study) -> list[int]:
+    """Fail the study's stale RUNNING trials now (dead workers of this machine, or silent past the grace period)."""
+    import warnings
+
+    import optuna
+
+    before = {t.number for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        optuna.storages.fail_stale_trials(study)
+    after = {t.number for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))}
+    return sorted(before - after)
+
+
+def _start_worker(spec: dict, worker: int, n: int, report) -> subprocess.Popen:
+    """One worker process (dies with this one); its specification goes through its stdin."""
+    from workbench import procs
+
+    p = procs.popen([sys.executable, "-m", "workbench.learn.tune", "--worker", "-"], stdin=subprocess.PIPE,
+                    stdout=subprocess.DEVNULL, stderr=None if report else subprocess.DEVNULL)
     try:
-        for i, n in enumerate(share):
-            if n == 0:
-                continue
-            fh = tempfile.NamedTemporaryFile("w", suffix=".json", delete=False)
-            json.dump({**spec, "worker": i, "n_trials": n}, fh)
-            fh.close()
-            files.append(fh.name)
-            procs.append(subprocess.Popen([sys.executable, "-m", "workbench.learn.tune", "--worker", fh.name],
-                                          stdout=subprocess.DEVNULL, stderr=None if report else subprocess.DEVNULL))
-        codes = [p.wait() for p in procs]
-    except KeyboardInterrupt:
-        for p in procs:
-            p.terminate()
+        p.stdin.write(json.dumps({**spec, "worker": worker, "n_trials": n}).encode("utf-8"))
+        p.stdin.close()
+    except BrokenPipeError:  # it died at once; its exit status tells
+        pass
+    return p
+
+
+def _spawn_workers(spec: dict, tune: TuneCfg, report: Callable[[str], None] | None, study) -> None:
+    """Start the worker processes with an exact share of the trials each, watch them, wait for all.
+
+    A worker killed by a signal (not by this command) has its running trial failed and queued
+    again at once, and is restarted for the trials of its share still owed (at most ``workers``
+    restarts in all). Leaving by an exception (Ctrl-C, SIGTERM) stops every worker and waits.
+    """
+    import signal as _signal
+
+    from workbench import procs
+
+    say = report or (lambda _m: None)
+    share = [tune.n_trials // tune.workers + (1 if i < tune.n_trials % tune.workers else 0) for i in range(tune.workers)]
+    slots = {i: n for i, n in enumerate(share) if n > 0}
+    running: dict[int, subprocess.Popen] = {}
+    codes: dict[int, int] = {}
+    restarts = 0
+    try:
+        for i, n in slots.items():
+            running[i] = _start_worker(spec, i, n, report)
+        while running:
+            time.sleep(0.5)
+            for i, p in list(running.items()):
+                rc = p.poll()
+                if rc is None:
+                    continue
+                del running[i]
+                if rc < 0:
+                    failed = _fail_stale(study)
+                    mine = [t for t in finished_trials(study.get_trials(deepcopy=False))
+                            if t.user_attrs.get("command") == spec["command"] and t.user_attrs.get("worker") == i]
+                    left = slots[i] - len(mine)
+                    name = _signal.Signals(-rc).name if -rc in _signal.Signals._value2member_map_ else str(-rc)
+                    say(f"worker {i} was killed ({name}); trial(s) {failed or 'none'} failed and queued again")
+                    if left > 0 and restarts < tune.workers:
+                        restarts += 1
+                        say(f"worker {i} restarted for the {left} trial(s) of its share still owed")
+                        running[i] = _start_worker(spec, i, left, report)
+                        continue
+                codes[i] = rc
+    except BaseException:
+        procs.interrupted()
+        procs.stop(list(running.values()))
+        try:
+            _fail_stale(study)
+        except Exception:  # noqa: BLE001 - the storage itself may be what failed
+            pass
         raise
-    finally:
-        for f in files:
-            Path(f).unlink(missing_ok=True)
-    if any(codes):
-        raise StageError(f"tune worker(s) failed with exit status {codes}", hint="see the worker lines above")
+    bad = {i: c for i, c in codes.items() if c}
+    if bad:
+        raise StageError(f"tune worker(s) failed with exit status {bad}", hint="see the worker lines above")
 
 
-def summarise(study, baseline: set[int], elapsed_s: float = 0.0) -> dict:
-    """Counts, the best trial and one row per trial of this invocation (and the study's overall best)."""
+def summarise(study, baseline: set[int], elapsed_s: float = 0.0, command: str | None = None) -> dict:
+    """Counts, the best trial and one row per trial of this invocation (and the study's overall best).
+
+    This invocation's trials are those with its ``command`` id (or, without one, those not in
+    ``baseline``); a failed trial that was retried is counted by its retry.
+    """
     import optuna
 
     trials = study.get_trials(deepcopy=False)
-    mine = [t for t in trials if t.number not in baseline]
+    from workbench.learn.tune_storage import retried_numbers
+
+    retried = retried_numbers(trials)
+    mine = [t for t in command_trials(trials, command, baseline) if t.number not in retried]
     counts = {s.name: sum(1 for t in mine if t.state == s) for s in optuna.trial.TrialState}
     complete = [t for t in trials if t.state == optuna.trial.TrialState.COMPLETE]
     best = min(complete, key=lambda t: t.value) if complete else None
     fails = [t.system_attrs.get("fail_reason", "?") for t in mine if t.state == optuna.trial.TrialState.FAIL]
     rows = [{"number": t.number, "state": t.state.name, "value": t.value, "params": t.params,
+             "command": t.user_attrs.get("command"), "worker": t.user_attrs.get("worker"),
+             "retry_of": t.system_attrs.get("failed_trial"),
              "epochs": len(t.intermediate_values), "duration_s": t.duration.total_seconds() if t.duration else None,
              "mlflow_run_id": t.user_attrs.get("mlflow_run_id")} for t in trials]
     best_d = None
@@ -403,15 +533,22 @@ def _worker_main(argv: list[str]) -> int:
     from workbench.console import info
     from workbench.errors import WorkbenchError
 
+    from workbench import procs
+
     if len(argv) != 2 or argv[0] != "--worker":
-        print("usage: python -m workbench.learn.tune --worker SPEC.json", file=sys.stderr)
+        print("usage: python -m workbench.learn.tune --worker SPEC.json|-  (- reads the spec from stdin)",
+              file=sys.stderr)
         return 2
-    spec = json.loads(Path(argv[1]).read_text(encoding="utf-8"))
+    procs.install()  # SIGTERM (also sent when the command dies) fails the running trial cleanly
+    text = sys.stdin.read() if argv[1] == "-" else Path(argv[1]).read_text(encoding="utf-8")
+    spec = json.loads(text)
     try:
         run_worker(spec, info)
     except WorkbenchError as exc:
         print(f"error: {exc.format()}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        return 130
     return 0
 
 

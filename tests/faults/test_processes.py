@@ -1,0 +1,111 @@
+"""No process outlives its command: each long-running verb is killed (SIGINT, SIGTERM, SIGKILL to its
+own pid) while its children exist, and none of its descendants, recorded while it ran, survives.
+
+The verbs run as real subprocesses on tiny inputs; descendants are found with psutil and
+identified by pid and start time, so a reused pid is not mistaken for a survivor.
+"""
+
+from __future__ import annotations
+
+import signal
+import urllib.request
+
+import pytest
+from proctree import Verb, free_port, port_open, project_env, small_parquet, tiny_learn_config
+
+SIGNALS = [signal.SIGINT, signal.SIGTERM, signal.SIGKILL]
+IDS = ["SIGINT", "SIGTERM", "SIGKILL"]
+
+
+@pytest.fixture
+def verb_runner(tmp_path):
+    started: list[Verb] = []
+
+    def run(args, env=None, name="verb"):
+        v = Verb(args, env or project_env(tmp_path), tmp_path, tmp_path / f"{name}.log")
+        started.append(v)
+        return v
+
+    yield run
+    for v in started:
+        v.cleanup()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", SIGNALS, ids=IDS)
+def test_ui_prints_its_url_when_the_page_answers_and_stopping_it_ends_the_whole_server(sig, tmp_path, verb_runner):
+    port = free_port()
+    ui = verb_runner(["ui", "--port", str(port)], name="ui")
+    ui.wait_for(lambda: "MLflow UI on http" in ui.text(), 300, "the UI's URL line")
+    # the URL is printed only once the page answers
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10) as r:
+        assert r.status == 200
+    assert "starting the MLflow UI" in ui.text()
+    kids = ui.watch()
+    assert len(kids) >= 3, f"expected the guard, the server and its workers, saw {[k.cmdline() for k in kids]}"
+    rc = ui.kill(sig)
+    assert rc is not None, "ui did not end"
+    assert ui.survivors(30) == []
+    assert not port_open(port), f"port {port} still held after {sig.name}"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", SIGNALS, ids=IDS)
+def test_killing_tune_ends_its_workers_fails_their_trials_and_leaves_no_temp_file(sig, tmp_path, verb_runner):
+    import optuna
+    from optuna.storages.journal import JournalFileBackend
+
+    data = small_parquet(tmp_path)
+    cfg = tiny_learn_config(tmp_path, max_epochs=5000, pruner={"type": "none"})
+    env = project_env(tmp_path)
+    tune = verb_runner(["tune", "--config", str(cfg), "--data", str(data), "--study", "k", "--n-trials", "4",
+                        "--workers", "2", "--no-mlflow"], env, name="tune")
+    journal = tmp_path / ".optuna" / "k.journal"
+
+    def running() -> int:
+        if not journal.exists():
+            return 0
+        st = optuna.storages.JournalStorage(JournalFileBackend(str(journal)))
+        try:
+            study = optuna.load_study(study_name="k", storage=st)
+        except KeyError:
+            return 0
+        return len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)))
+
+    def workers() -> int:
+        return sum("workbench.learn.tune" in cmd for _, cmd in tune.seen.values())
+
+    tune.wait_for(lambda: workers() >= 2 and running() >= 2, 240, "two workers with running trials")
+    tune.kill(sig)
+    assert tune.survivors(40) == []
+    # files only: torch creates an empty cache folder (torchinductor_<user>) on import
+    leftovers = sorted(p.name for p in (tmp_path / "tmpdir").rglob("*") if p.is_file())
+    assert leftovers == [], f"temp files left behind: {leftovers}"
+    assert running() == 0, "a killed command's trial is still RUNNING"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", SIGNALS, ids=IDS)
+def test_killing_the_pool_render_ends_its_render_processes(sig, tmp_path, verb_runner):
+    pool = verb_runner(["virtual-lab", "pool", str(tmp_path / "trials"), "--synthetic"], name="pool")
+
+    def renderers() -> int:
+        return sum("multiprocessing" in cmd and "resource_tracker" not in cmd for _, cmd in pool.seen.values())
+
+    pool.wait_for(lambda: renderers() >= 2, 240, "two render processes")
+    pool.kill(sig)
+    assert pool.survivors(30) == []
+    assert not (tmp_path / "trials").exists()  # nothing half-written swapped in
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_killing_train_leaves_no_process(sig, tmp_path, verb_runner):
+    data = small_parquet(tmp_path)
+    cfg = tiny_learn_config(tmp_path)
+    train = verb_runner(["train", "--config", str(cfg), "--data", str(data), "--no-mlflow",
+                         "--set", "trainer.max_epochs=500", "--out", str(tmp_path / "model")], name="train")
+    train.wait_for(lambda: "epoch   1/500" in train.text(), 240, "the first epoch")
+    train.kill(sig)
+    assert train.survivors(20) == []
+    assert not (tmp_path / "model").exists()

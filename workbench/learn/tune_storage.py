@@ -1,0 +1,178 @@
+"""Optuna storages whose trials cannot stay RUNNING forever, and a sampler seeded per trial.
+
+**Heartbeats.** Every worker records a heartbeat for its running trial every
+``heartbeat_interval_s`` (Optuna's own heartbeat thread). A RUNNING trial is *stale*, and is
+failed by the next worker that asks for a trial (Optuna's ``fail_stale_trials``) or by the
+command that started the worker, when
+
+- its last heartbeat (or its start, before the first) is older than ``grace_period_s``
+  (any machine: a worker that died with its machine, or hangs), or
+- its worker ran on this machine and that process is gone (its pid is dead or reused): a
+  killed worker's trial is failed at once, without waiting for the grace period.
+
+A stale trial that failed is retried once (Optuna's ``RetryHeartbeatStaleTrialCallback``: a WAITING
+copy with the same parameters, which the next worker runs first; ``system_attrs`` of the copy
+name the failed trial).
+
+Optuna implements heartbeats for its RDB storage (PostgreSQL, SQLite) only. For the journal
+file the same interface is implemented here: a heartbeat is a trial system attribute
+``wb:heartbeat`` (one journal line per beat).
+
+**Seeds.** :class:`TrialSeededTPE` reseeds TPE's random number generators from
+``(sampler_seed, trial number)`` before each trial. Trial numbers are unique in a study, so no
+two trials draw the same random numbers, whichever command, worker or machine runs them, and a
+given trial of a study always draws the same numbers: a single command with one worker on a
+fresh study is reproducible (its TPE trials also depend on the results before them).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from typing import Any, Callable
+
+from optuna.samplers import TPESampler
+from optuna.storages import JournalStorage, RDBStorage
+from optuna.storages._heartbeat import BaseHeartbeat
+from optuna.trial import TrialState
+
+HEARTBEAT_KEY = "wb:heartbeat"
+OWNER_KEY = "wb:owner"
+
+
+def trial_seed(sampler_seed: int, number: int) -> int:
+    """The sampler seed of trial ``number``: distinct for distinct trial numbers of one study."""
+    return (int(sampler_seed) * 1_000_003 + int(number)) % (2**32)
+
+
+class TrialSeededTPE(TPESampler):
+    """TPE whose random streams restart from :func:`trial_seed` before each trial (see the module text)."""
+
+    def __init__(self, sampler_seed: int = 0, **kwargs):
+        super().__init__(seed=sampler_seed, **kwargs)
+        self.sampler_seed = int(sampler_seed)
+
+    def before_trial(self, study, trial) -> None:
+        seed = trial_seed(self.sampler_seed, trial.number)
+        self._rng.rng.seed(seed)
+        self._random_sampler._rng.rng.seed(seed)
+        super().before_trial(study, trial)
+
+
+def _me() -> dict:
+    import psutil
+
+    return {"host": socket.gethostname(), "pid": os.getpid(), "ctime": psutil.Process().create_time()}
+
+
+def owner_is_dead(owner: Any) -> bool:
+    """True when ``owner`` (host, pid, process start time) names a process of this machine that is gone."""
+    import psutil
+
+    if not isinstance(owner, dict) or owner.get("host") != socket.gethostname():
+        return False
+    try:
+        proc = psutil.Process(int(owner["pid"]))
+        return abs(proc.create_time() - float(owner["ctime"])) > 0.01 or proc.status() == psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return True
+    except (psutil.Error, KeyError, TypeError, ValueError):
+        return False
+
+
+class _LocalOwner:
+    """Mixin: remember which process runs a trial, and call its trial stale as soon as that process is gone."""
+
+    _owned: set
+
+    def _record_owner(self, trial_id: int) -> None:
+        if trial_id in self._owned:
+            return
+        self._owned.add(trial_id)
+        number = self.get_trial_number_from_id(trial_id)
+        self.set_trial_system_attr(trial_id, OWNER_KEY, {**_me(), "trial": number})
+
+    def _dead_owner_ids(self, study_id: int) -> list[int]:
+        out = []
+        for t in self.get_all_trials(study_id, deepcopy=False, states=(TrialState.RUNNING,)):
+            owner = t.system_attrs.get(OWNER_KEY)
+            # a retried trial's copy carries its predecessor's owner: only this trial's own counts
+            if isinstance(owner, dict) and owner.get("trial") == t.number and owner_is_dead(owner):
+                out.append(t._trial_id)
+        return out
+
+
+class HeartbeatJournalStorage(_LocalOwner, JournalStorage, BaseHeartbeat):
+    """A journal-file storage with heartbeats (see the module text)."""
+
+    def __init__(self, backend, *, heartbeat_interval: int, grace_period: int,
+                 stale_trial_callback: Callable | None = None):
+        super().__init__(backend)
+        self.heartbeat_interval = int(heartbeat_interval)
+        self.grace_period = int(grace_period)
+        self._stale_cb = stale_trial_callback
+        self._owned = set()
+
+    def record_heartbeat(self, trial_id: int) -> None:
+        number = self.get_trial_number_from_id(trial_id)
+        self.set_trial_system_attr(trial_id, HEARTBEAT_KEY, {**_me(), "trial": number, "t": time.time()})
+
+    def _get_stale_trial_ids(self, study_id: int) -> list[int]:
+        now = time.time()
+        stale = []
+        for t in self.get_all_trials(study_id, deepcopy=False, states=(TrialState.RUNNING,)):
+            beat = t.system_attrs.get(HEARTBEAT_KEY)
+            if isinstance(beat, dict) and beat.get("trial") == t.number:
+                if owner_is_dead(beat) or now - float(beat["t"]) > self.grace_period:
+                    stale.append(t._trial_id)
+            elif t.datetime_start is not None:
+                start = t.datetime_start.timestamp()
+                if now - start > self.grace_period:
+                    stale.append(t._trial_id)
+        return stale
+
+    def get_heartbeat_interval(self) -> int | None:
+        return self.heartbeat_interval
+
+    def get_heartbeat_stale_trial_callback(self):
+        return self._stale_cb
+
+    def get_failed_trial_callback(self):
+        return self._stale_cb
+
+
+class HeartbeatRDBStorage(_LocalOwner, RDBStorage):
+    """Optuna's RDB storage (heartbeats in its own table), plus the same-machine dead-worker check."""
+
+    def __init__(self, url: str, **kwargs):
+        super().__init__(url, **kwargs)
+        self._owned = set()
+
+    def record_heartbeat(self, trial_id: int) -> None:
+        super().record_heartbeat(trial_id)
+        self._record_owner(trial_id)
+
+    def _get_stale_trial_ids(self, study_id: int) -> list[int]:
+        ids = super()._get_stale_trial_ids(study_id)
+        return ids + [i for i in self._dead_owner_ids(study_id) if i not in ids]
+
+
+def retry_callback(max_retry: int):
+    """Optuna's retry of failed stale trials (``max_retry`` copies at most)."""
+    import warnings
+
+    import optuna
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        return optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=max_retry)
+
+
+def retried_numbers(trials) -> set[int]:
+    """Numbers of failed trials that have a retry copy in ``trials``."""
+    out: set[int] = set()
+    for t in trials:
+        for n in t.system_attrs.get("retry_history", []) or []:
+            out.add(int(n))
+    return out
