@@ -237,3 +237,42 @@ def test_a_new_effect_is_fitted_and_named_by_the_loop(hip_spring, tmp_path):
     # the augmented model names and rebuilds it through the same table
     doc = d.augmented.to_json() if hasattr(d.augmented, "to_json") else None
     assert doc is None or any(x["name"] == "hip_spring" for x in doc["effects"])
+
+
+def test_input_effects_act_on_an_expensive_models_output_through_their_hooks():
+    """The surrogate search asks input effects how they act on a model's output (no names in the chain).
+
+    A lag of the output equals a lag of the input to first order in tau, and a blocked flow by
+    the quadratic through three flows: the surrogate is much closer to the exact design than the
+    plain model is.
+    """
+    from workbench.diagnose.chain import Active, Configuration, build_design
+    from workbench.diagnose.effects.rig import ServoLag, TunnelBlockage
+    from workbench.hydro.ef import EmpiricalFormula
+    from workbench.hydro.motion import JointSinusoid, LegMotion
+
+    t = np.arange(0, 6, 1 / 65)
+    rows = [JointSinusoid(10, -100, 80, -20 - 10 * i, 0.4 + 0.1 * i, 1.0).motion(t, 0.2) for i in range(2)]
+    motion = LegMotion(rows[0].dt_s, *(np.concatenate([getattr(r, f) for r in rows]) for f in
+                                       ("theta_h_deg", "theta_k_deg", "omega_h_dps", "omega_k_dps", "flow_speed_mps",
+                                        "alpha_h_dps2", "alpha_k_dps2")))
+
+    class Batch:
+        def __init__(self, m):
+            self.motion, self.dt_s = m, m.dt_s
+            self.time_s = np.broadcast_to(np.arange(m.theta_h_deg.shape[1]) * m.dt_s, m.theta_h_deg.shape)
+
+    rs, ef = Batch(motion), EmpiricalFormula()
+    plain = build_design(ef, rs, Configuration()).base
+    for nl_lag, nl_blk in (({"tau_s": 0.03}, None), (None, {"epsilon": 0.1}), ({"tau_s": 0.03}, {"epsilon": 0.1})):
+        cfg = Configuration()
+        if nl_lag:
+            cfg = cfg.with_effect(Active(ServoLag(), nl_lag))
+        if nl_blk:
+            cfg = cfg.with_effect(Active(TunnelBlockage(), nl_blk))
+        exact = build_design(ef, rs, cfg).base
+        sur = build_design(ef, rs, cfg, surrogate=True).base
+        skip = 65  # the lag's start-up
+        err = np.sqrt(np.mean((sur - exact)[:, skip:] ** 2))
+        moved = np.sqrt(np.mean((plain - exact)[:, skip:] ** 2))
+        assert 0 < err < 0.2 * moved, (nl_lag, nl_blk, err, moved)  # the surrogate ran, and is close
