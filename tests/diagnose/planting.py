@@ -1,7 +1,7 @@
 """Plant rig effects into a copy of a raw tunnel campaign by editing its CSV files (contract v1, section 1).
 
 Everything here is written from the physics of the rig, independently of the workbench's effect
-library (``workbench/diagnose/effects_*.py``) and of the virtual lab's effects: a program outside
+library (``workbench/diagnose/effects/``) and of the virtual lab's effects: a program outside
 the workbench could do the same to a real campaign. Only the data contract is shared.
 
 Each plant is a function ``plant(lc, mo, run) -> None`` that edits, in place,
