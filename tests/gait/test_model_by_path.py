@@ -54,6 +54,7 @@ def registry(tmp_path, saved, monkeypatch):
     return uri, version, run.info.run_id
 
 
+@pytest.mark.slow
 def test_a_model_folder_loads_by_path_and_predicts_as_the_registered_version(saved, registry):
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.motion import JointSinusoid

@@ -70,7 +70,7 @@ def load_model_spec(spec: str):
     if Path(spec).is_dir():
         from workbench.learn.registry import load_folder
 
-        return load_folder(spec, model_uri=str(spec))
+        return load_folder(spec, model_uri=str(spec), model_path=str(spec))
     return load_leg_model(spec)
 
 
@@ -102,10 +102,19 @@ def evaluate_to_files(*, data, split_path, out, figures, model, also, options, m
         if not spec:
             raise ContractError(f"--also {item!r} is not NAME=SPEC")
         models[name] = load_model_spec(spec)
+    sources = []
+    for name, m in models.items():  # which registry version or folder each learned model came from
+        d = m.describe()
+        if d.get("model_version"):
+            sources.append(f"{name}: {d.get('model_uri')} version {d['model_version']}")
+        elif d.get("model_path") or d.get("model_uri"):
+            sources.append(f"{name}: {d.get('model_path') or d.get('model_uri')}")
     metrics, result = evaluate_models(table, split, models)
     write_json(out, metrics)
     lines = [f"wrote {out}: {metrics['lstm']['n_runs']} held-out runs, {metrics['lstm']['n_ticks']} ticks per model "
              f"(first {result['skip']} ticks of each run skipped for all models)"]
+    if sources:
+        lines.append("models: " + "; ".join(sources))
     ratios = mse_ratios(metrics)
     for s, r in ratios.items():
         r2 = metrics["ef"]["r2_by_flow_speed"][s]
@@ -141,7 +150,8 @@ def _log_evaluation(metrics, ratios, lstm, table, out, figures, options, dvc_sta
     setup(None, options.get("experiment", "fed-lstm"))
     d = lstm.describe()
     tags = run_tags(kind="evaluate", campaigns=table.campaigns(), variant=d.get("variant"), dvc_stage=dvc_stage,
-                    model_uri=d.get("model_uri"), model_run_id=d.get("run_id"))
+                    model_uri=d.get("model_uri"), model_run_id=d.get("run_id"), model_version=d.get("model_version"),
+                    model_path=d.get("model_path"))
     flat = {}
     for name, m in metrics.items():
         for c, v in m["mse"].items():
