@@ -8,7 +8,8 @@ command that started the worker, when
 - its last heartbeat (or its start, before the first) is older than ``grace_period_s``
   (any machine: a worker that died with its machine, or hangs), or
 - its worker ran on this machine and that process is gone (its pid is dead or reused): a
-  killed worker's trial is failed at once, without waiting for the grace period.
+  killed worker's trial is failed at once, without waiting for the grace period. The worker
+  (host, pid, start time) is written as ``wb:owner`` the moment the trial starts running.
 
 A stale trial that failed is retried once (Optuna's ``RetryHeartbeatStaleTrialCallback``: a WAITING
 copy with the same parameters, which the next worker runs first; ``system_attrs`` of the copy
@@ -86,6 +87,18 @@ class _LocalOwner:
 
     _owned: set
 
+    def create_new_trial(self, study_id: int, template_trial=None) -> int:
+        trial_id = super().create_new_trial(study_id, template_trial)
+        if template_trial is None or template_trial.state == TrialState.RUNNING:
+            self._record_owner(trial_id)
+        return trial_id
+
+    def set_trial_state_values(self, trial_id: int, state, values=None) -> bool:
+        ok = super().set_trial_state_values(trial_id, state, values)
+        if ok and state == TrialState.RUNNING:  # a WAITING (e.g. retried) trial taken up here
+            self._record_owner(trial_id)
+        return ok
+
     def _record_owner(self, trial_id: int) -> None:
         if trial_id in self._owned:
             return
@@ -121,9 +134,12 @@ class HeartbeatJournalStorage(_LocalOwner, JournalStorage, BaseHeartbeat):
     def _get_stale_trial_ids(self, study_id: int) -> list[int]:
         now = time.time()
         stale = []
+        dead = set(self._dead_owner_ids(study_id))
         for t in self.get_all_trials(study_id, deepcopy=False, states=(TrialState.RUNNING,)):
             beat = t.system_attrs.get(HEARTBEAT_KEY)
-            if isinstance(beat, dict) and beat.get("trial") == t.number:
+            if t._trial_id in dead:
+                stale.append(t._trial_id)
+            elif isinstance(beat, dict) and beat.get("trial") == t.number:
                 if owner_is_dead(beat) or now - float(beat["t"]) > self.grace_period:
                     stale.append(t._trial_id)
             elif t.datetime_start is not None:

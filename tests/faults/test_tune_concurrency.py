@@ -1,0 +1,207 @@
+"""Concurrent tune commands on one study: distinct seeds, progress per command, a killed worker's trial
+failed and retried, every trial accounted for, none left RUNNING (journal file and PostgreSQL)."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+from proctree import PROJECT, Verb, project_env, small_parquet, tiny_learn_config
+
+# ----------------------------------------------------------------------------- fast: the storage itself
+
+
+def _journal(path):
+    from workbench.learn.tune import TuneCfg, resolve_storage
+
+    return resolve_storage(str(path), "s", TuneCfg(heartbeat_interval_s=1, grace_period_s=30))[0]
+
+
+def test_a_trial_whose_worker_was_killed_is_failed_at_once_and_queued_again(tmp_path):
+    import optuna
+
+    journal = tmp_path / "s.journal"
+    optuna.create_study(study_name="s", storage=_journal(journal))
+    # a real worker process: asks for a trial, beats, then hangs until it is killed
+    code = textwrap.dedent(f"""
+        import time, optuna
+        from workbench.learn.tune import TuneCfg, resolve_storage
+        from optuna.storages._heartbeat import get_heartbeat_thread
+        st = resolve_storage({str(journal)!r}, "s", TuneCfg(heartbeat_interval_s=1, grace_period_s=30))[0]
+        study = optuna.load_study(study_name="s", storage=st)
+        t = study.ask({{"x": optuna.distributions.FloatDistribution(0, 1)}})
+        with get_heartbeat_thread(t._trial_id, st):
+            print("running", flush=True)
+            time.sleep(600)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(PROJECT)})
+    try:
+        assert proc.stdout.readline().strip() == "running"
+        study = optuna.load_study(study_name="s", storage=_journal(journal))
+        optuna.storages.fail_stale_trials(study)  # the worker lives: its trial is not stale
+        assert [t.state.name for t in study.get_trials()] == ["RUNNING"]
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    optuna.storages.fail_stale_trials(study)  # well inside the 30 s grace period: the dead pid tells
+    trials = study.get_trials()
+    assert [t.state.name for t in trials] == ["FAIL", "WAITING"]
+    assert trials[1].params == trials[0].params and trials[1].system_attrs["failed_trial"] == 0
+
+
+def test_a_trial_silent_past_the_grace_period_is_failed(tmp_path):
+    import optuna
+
+    from workbench.learn.tune_storage import HEARTBEAT_KEY
+
+    storage = _journal(tmp_path / "s.journal")
+    study = optuna.create_study(study_name="s", storage=storage)
+    t = study.ask()
+    # its last heartbeat came from another machine 40 s ago (grace period 30 s)
+    storage.set_trial_system_attr(t._trial_id, HEARTBEAT_KEY, {"host": "elsewhere", "pid": 1, "ctime": 0.0,
+                                                               "trial": t.number, "t": time.time() - 40})
+    t2 = study.ask()
+    storage.set_trial_system_attr(t2._trial_id, HEARTBEAT_KEY, {"host": "elsewhere", "pid": 1, "ctime": 0.0,
+                                                                "trial": t2.number, "t": time.time() - 5})
+    optuna.storages.fail_stale_trials(study)
+    states = {x.number: x.state.name for x in study.get_trials()}
+    assert states[t.number] == "FAIL" and states[t2.number] == "RUNNING"
+
+
+def test_trials_draw_distinct_seeds_whichever_worker_runs_them_and_the_same_seed_for_the_same_trial(tmp_path):
+    import optuna
+
+    from workbench.learn.tune_storage import TrialSeededTPE
+
+    space = {"lr": optuna.distributions.FloatDistribution(1e-4, 1e-1, log=True),
+             "h": optuna.distributions.IntDistribution(8, 256)}
+
+    def draws(study_name):
+        study = optuna.create_study(study_name=study_name, storage=_journal(tmp_path / f"{study_name}.journal"))
+        # two "workers" (samplers built alike, as two commands would) take turns on one study
+        a, b = TrialSeededTPE(0, constant_liar=True), TrialSeededTPE(0, constant_liar=True)
+        out = []
+        for i in range(6):
+            study.sampler = a if i % 2 == 0 else b
+            t = study.ask(space)
+            out.append((t.number, t.params["lr"], t.params["h"]))
+            study.tell(t, (t.params["lr"] - 0.01) ** 2)
+        return out
+
+    first, again = draws("one"), draws("two")
+    assert len({(lr, h) for _, lr, h in first}) == 6  # no trial repeats another's draw
+    assert first == again  # a study's trial k always draws the same numbers: reproducible
+
+
+# ----------------------------------------------------------------------------- slow: two real commands
+
+
+_STORAGES: dict = {}
+
+
+def _trials(storage_arg: str, study: str):
+    import optuna
+
+    from workbench.learn.tune import resolve_storage
+
+    if storage_arg not in _STORAGES:  # one storage (one connection pool) per URL
+        _STORAGES[storage_arg] = resolve_storage(storage_arg, study)[0]
+    return optuna.load_study(study_name=study, storage=_STORAGES[storage_arg]).get_trials()
+
+
+def _two_commands_one_killed_worker(tmp_path, storage_arg: str):
+    data = small_parquet(tmp_path)
+    cfg = tiny_learn_config(tmp_path, max_epochs=6, pruner={"type": "none"}, heartbeat_interval_s=2,
+                            grace_period_s=60)
+    env = project_env(tmp_path)
+    args = ["tune", "--config", str(cfg), "--data", str(data), "--study", "c", "--storage", storage_arg,
+            "--n-trials", "3", "--workers", "2", "--no-mlflow"]
+    a = Verb(args, env, tmp_path, tmp_path / "a.log")
+    b = Verb(args, env, tmp_path, tmp_path / "b.log")
+    killed = {}
+    try:
+        from workbench.learn.tune_storage import HEARTBEAT_KEY, OWNER_KEY
+
+        def victim():
+            pids = {k.pid for k in a.watch() if "workbench.learn.tune" in " ".join(k.cmdline())}
+            b.watch()
+            try:
+                trials = _trials(storage_arg, "c")
+            except Exception:  # noqa: BLE001 - the study may not exist yet
+                return False
+            for t in trials:
+                if t.state.name != "RUNNING" or "command" not in t.user_attrs:
+                    continue
+                who = t.system_attrs.get(HEARTBEAT_KEY) or t.system_attrs.get(OWNER_KEY) or {}
+                if who.get("pid") in pids and who.get("trial") == t.number:
+                    killed.update(pid=who["pid"], trial=t.number)
+                    return True
+            return False
+
+        a.wait_for(victim, 400, "a running trial of command A's worker")
+        os.kill(killed["pid"], signal.SIGKILL)
+        for v in (a, b):
+            deadline = time.monotonic() + 600
+            while v.proc.poll() is None and time.monotonic() < deadline:
+                v.watch()
+                time.sleep(0.5)
+        assert a.proc.returncode == 0, a.text()[-3000:]
+        assert b.proc.returncode == 0, b.text()[-3000:]
+        assert a.survivors(20) == [] and b.survivors(20) == []
+    finally:
+        a.cleanup()
+        b.cleanup()
+    trials = _trials(storage_arg, "c")
+    states = {t.number: t.state.name for t in trials}
+    # every trial accounted for: none RUNNING or WAITING, the killed one FAIL with a retry that ran
+    assert not [n for n, s in states.items() if s in ("RUNNING", "WAITING")], states
+    assert states[killed["trial"]] == "FAIL"
+    retries = [t for t in trials if t.system_attrs.get("failed_trial") == killed["trial"]]
+    assert len(retries) == 1 and retries[0].state.name in ("COMPLETE", "PRUNED")
+    assert retries[0].params == next(t.params for t in trials if t.number == killed["trial"])
+    # each command ran exactly its 3 trials (a failed trial counted by its retry)
+    commands = {}
+    for t in trials:
+        if t.number != killed["trial"]:
+            commands.setdefault(t.user_attrs["command"], []).append(t.number)
+    assert sorted(len(v) for v in commands.values()) == [3, 3], commands
+    # distinct seeds, and no two first-hand trials drew the same parameters
+    seeds = [t.user_attrs["sampler_seed"] for t in trials]
+    assert len(set(seeds)) == len(seeds)
+    fresh = [t for t in trials if "failed_trial" not in t.system_attrs]
+    assert len({tuple(sorted(t.params.items())) for t in fresh}) == len(fresh)
+    # progress counted per command: "trial k/3", never more than 3, up to 3
+    for v in (a, b):
+        counts = [int(k) for k, n in re.findall(r"trial (\d+)/(\d+)", v.text()) if n == "3"]
+        assert counts and max(counts) == 3, v.text()[-2000:]
+    assert "worker" in a.text() and "was killed (SIGKILL)" in a.text()
+    return trials
+
+
+@pytest.mark.slow
+def test_two_commands_two_workers_on_a_journal_one_worker_killed(tmp_path):
+    _two_commands_one_killed_worker(tmp_path, str(tmp_path / "c.journal"))
+
+
+@pytest.mark.slow
+def test_two_commands_two_workers_on_postgresql_one_worker_killed(tmp_path):
+    sys.path.insert(0, str(PROJECT / "tests" / "integration"))
+    try:
+        from itest_servers import create_database, pg_bin, postgres_server
+    finally:
+        sys.path.pop(0)
+    if pg_bin() is None:
+        pytest.skip("PostgreSQL server binaries not installed (make system-deps)")
+    with postgres_server(tmp_path) as base:
+        url = create_database(base, "optuna")
+        _two_commands_one_killed_worker(tmp_path, url)
