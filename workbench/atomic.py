@@ -58,6 +58,10 @@ KNOWN_OUTPUTS: dict[str, frozenset[str]] = {
                            "population.csv", "trajectories.png"}),
     "score-trials": frozenset({"scores.csv", "summary.json", "comparison.md", "trajectories", "plots", "overlays"}),
     "fit-drag": frozenset({"drag.json", "drag.md", "drag.png"}),
+    "simulate": frozenset({"trajectory.parquet", "paths.png", "summary.json"}),
+    "sensitivity": frozenset({"sensitivity.json", "sensitivity.png"}),
+    "evaluate": frozenset({"prediction_a.png", "prediction_b.png", "prediction_c.png", "prediction_d.png",
+                           "mse_boxplot.png"}),
     # a virtual campaign or trials folder: truth.json is what tells it from a real one
     "virtual-lab": frozenset({"campaign.toml", "trials.toml", "runs", "videos", "truth.json"}),
 }
