@@ -1,4 +1,6 @@
-"""Trajectory level: a planted current and yaw drift in tracked trials are found and removed."""
+"""Trajectory level on EF-made trials: a planted current is found and removed, a yaw drift reported.
+
+The rich-truth pool battery is tests/diagnose/test_trajectory_pool.py."""
 
 import json
 
@@ -28,7 +30,7 @@ def _write_trials(root, current=(0.0, 0.0), yaw_dps=0.0, seed=0):
     rng = np.random.default_rng(seed)
     g = GaitBatch.from_arrays([a for a, *_ in GAITS], [b for _, b, *_ in GAITS], [f for _, _, f, _ in GAITS],
                               [al for *_, al in GAITS])
-    tr = simulate(g, EmpiricalFormula(), RobotParams(), duration_s=20.0)
+    tr = simulate(g, EmpiricalFormula(), RobotParams(), duration_s=40.0)
     (root / "trajectories").mkdir(parents=True)
     gaits_dir = root / "gaits"
     gaits_dir.mkdir()
@@ -36,7 +38,7 @@ def _write_trials(root, current=(0.0, 0.0), yaw_dps=0.0, seed=0):
         {"rank": i + 1, "params": p} for i, p in enumerate(g.to_params())]}
     (gaits_dir / "straight-ef.json").write_text(json.dumps(doc))
     rows = []
-    t_frame = np.arange(0, 20.0, 1 / 15)
+    t_frame = np.arange(0, 40.0, 1 / 15)
     for i in range(len(GAITS)):
         t = tr.t_s
         v = np.gradient(np.stack([tr.x_m[i], tr.y_m[i]], 1), t, axis=0)
@@ -54,7 +56,7 @@ def _write_trials(root, current=(0.0, 0.0), yaw_dps=0.0, seed=0):
         pl.DataFrame({"time_s": t_frame, "x_m": tank[:, 0], "y_m": tank[:, 1], "X_m": trial[:, 0], "Y_m": trial[:, 1],
                       "heading_change_deg": np.degrees(heading), "detected": np.ones(len(t_frame), bool),
                       "filled": np.zeros(len(t_frame), bool)}).write_parquet(root / "trajectories" / f"t{i}.parquet")
-        rows.append({"trial_id": f"t{i}", "model": "EF", "solution": i + 1, "task": "straight", "time_s": 20.0,
+        rows.append({"trial_id": f"t{i}", "model": "EF", "solution": i + 1, "task": "straight", "time_s": 40.0,
                      "mae_x_m": 0.1, "radius_m": None, "completed": True})
     pl.DataFrame(rows).write_csv(root / "scores.csv")
     return root, gaits_dir
@@ -68,14 +70,18 @@ def test_planted_current_and_yaw_drift_are_recovered(tmp_path, current, yaw):
     d = diagnose_trajectories(tracks, sims, "ef")
     names = {e["name"]: e for e in d.effects}
     assert ("current" in names) == bool(np.any(current))
-    assert ("yaw_drift" in names) == bool(yaw)
+    # without a reference session a steady yaw error is reported (it could be the model's), not claimed
+    assert "yaw_drift" not in names
+    heading = [u for u in d.unexplained if u["kind"] == "heading_drift"]
+    assert bool(heading) == bool(yaw)
     if np.any(current):
         got = [names["current"]["params"]["cx_mps"], names["current"]["params"]["cy_mps"]]
         assert np.allclose(got, current, atol=0.2 * max(np.abs(current)))
     if yaw:
-        assert names["yaw_drift"]["params"]["rate_dps"] == pytest.approx(yaw, rel=0.2)
+        assert heading[0]["rate_dps"] == pytest.approx(yaw, rel=0.2)
     j = d.to_json()
-    assert j["rms_position_error_m"]["after"] < 0.3 * j["rms_position_error_m"]["before"]
+    if np.any(current) and not yaw:
+        assert j["rms_position_error_m"]["after"] < 0.3 * j["rms_position_error_m"]["before"]
 
 
 def test_nothing_claimed_when_the_simulator_is_right(tmp_path):
@@ -92,8 +98,8 @@ def test_cli_trajectory_level(tmp_path):
 
     scores, gaits = _write_trials(tmp_path / "in", (0.03, 0.0), 0.0)
     out = tmp_path / "out"
-    assert main(["diagnose", "--trials", str(scores), "--gaits", str(gaits), "--model", "ef", "--out", str(out)]) == 0
+    assert main(["diagnose", "--trials", str(scores), "--gaits", str(gaits), "--model", "ef", "--out", str(out), "--no-mlflow"]) == 0
     doc = json.loads((out / "trajectory_diagnosis.json").read_text())
     assert [e["name"] for e in doc["effects"]] == ["current"]
     assert doc["rms_position_error_m"]["after"] < doc["rms_position_error_m"]["before"]
-    assert (out / "trajectories.png").stat().st_size > 1000
+    assert (out / "trajectory_errors.png").stat().st_size > 1000

@@ -18,7 +18,10 @@ def register(sub) -> None:
         "runs and claimed only when they beat the noise on held-out runs. Writes OUT/diagnosis.json (data "
         "contract section 4), OUT/augmented_model.json (load it anywhere as `augmented:OUT`), OUT/report.md "
         "with figures, and logs the diagnosis to MLflow (experiment 'diagnose'). Settings: "
-        "pipelines/diagnose.yaml.",
+        "pipelines/diagnose.yaml. Trajectory level (--trials, docs/diagnose-trajectory.md): the scored pool "
+        "trials are swum again in the simulator with each leg model (--models), the RMS position and heading "
+        "errors are compared side by side (OUT/trajectory_errors.json, .png), and a water current or a yaw drift "
+        "is named when the trials show one (OUT/trajectory_diagnosis.json).",
         examples="""\
   workbench diagnose --campaign datasets/raw/demo-tunnel --model ef --out datasets/diagnosis/demo-tunnel-ef
   workbench diagnose --processed datasets/processed/demo-tunnel.parquet --model lstm --out /tmp/diag-lstm
@@ -28,6 +31,11 @@ def register(sub) -> None:
   workbench diagnose --campaign datasets/raw/tunnel-new-servo --reference datasets/raw/demo-tunnel --model ef \
       --out /tmp/what-changed                      # only what differs from the reference campaign is named
   workbench diagnose --trials datasets/scores/demo-pool --gaits datasets/gaits --model ef --out /tmp/traj
+  workbench diagnose --trials datasets/scores/demo-pool --models ef \\
+      datasets/diagnosis/demo-tunnel-ef/augmented_model.json datasets/models/fed-lstm --out /tmp/traj3
+                                                   # trajectory error of three leg models side by side
+  workbench diagnose --trials /tmp/pool-after --reference datasets/scores/demo-pool --out /tmp/pool-changed
+                                                   # current or yaw drift since a reference pool session
   workbench virtual-lab tunnel /tmp/vl --truth ef --effect servo_lag:tau_s=0.04 && \\
       workbench diagnose --campaign /tmp/vl --model ef --out /tmp/vl-diag   # does it find the planted lag?
 """)
@@ -44,6 +52,10 @@ def register(sub) -> None:
     p.add_argument("--model", default="ef", metavar="MODEL",
                    help="leg force model: ef, lstm, models:/NAME@ALIAS, augmented:DIR or a saved augmented "
                    "model's path (default: ef)")
+    p.add_argument("--models", nargs="+", metavar="MODEL",
+                   help="with --trials: swim the trials with each of these leg models and compare them (RMS position "
+                   "and heading error side by side, trajectory_errors.json); e.g. ef "
+                   "datasets/diagnosis/demo-tunnel-ef/augmented_model.json datasets/models/fed-lstm")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (replaced atomically on success)")
     p.add_argument("--params", default="pipelines/diagnose.yaml", metavar="YAML",
                    help="parameter file with a 'diagnose' section (default: pipelines/diagnose.yaml; built-in "
@@ -53,7 +65,9 @@ def register(sub) -> None:
     p.add_argument("--reference", metavar="CAMPAIGN_OR_PROCESSED",
                    help="a reference campaign on the same rig (raw folder or processed Parquet): the base model's "
                    "stroke-locked misfit there (per motion parameters and flow speed) is taken out first, so only "
-                   "what changed since (a new servo, load cell, mount, pump) is diagnosed")
+                   "what changed since (a new servo, load cell, mount, pump) is diagnosed. With --trials: a "
+                   "reference pool session (score-trials folder, the same gaits swum before): its tracks are the "
+                   "base, so a yaw drift can be named (without one it is only reported)")
     p.add_argument("--effects", metavar="LIST", help="comma-separated candidate effects (default: the whole library)")
     p.add_argument("--max-runs", type=int, metavar="N", help="analyse at most N runs (whole parameter sets)")
     p.add_argument("--skip-bad-runs", action="store_true", help="ingest the good runs of a campaign with bad ones")
@@ -222,46 +236,134 @@ def run(args) -> int:
     return 0
 
 
+def _model_label(spec: str, model) -> str:
+    """A readable name for a leg model spec: EF, augmented EF, FED-LSTM, or the spec itself."""
+    from workbench.diagnose.augmented import AugmentedLegModel
+
+    if isinstance(model, AugmentedLegModel):
+        base = str(model.base_spec)
+        return "augmented " + ("EF" if base == "ef" else "FED-LSTM" if "lstm" in base.lower() else base)
+    name = str(getattr(model, "name", spec))
+    if spec == "ef" or name.lower() in ("ef", "empirical formula"):
+        return "EF"
+    if "lstm" in spec.lower() or "lstm" in name.lower():
+        return "FED-LSTM"
+    return spec
+
+
 def _run_trajectories(args, t0: float) -> int:
-    """Trajectory level: simulate the tracked trials, fit trajectory effects, write trajectory_diagnosis.json."""
+    """Trajectory level: swim the tracked trials with each model, fit trajectory effects, write the errors."""
     import time
     from pathlib import Path
 
     from workbench.atomic import atomic_dir, write_json
     from workbench.console import info
     from workbench.diagnose.augmented import AugmentedLegModel
-    from workbench.diagnose.report import fig_trajectories
     from workbench.diagnose.trajectory import (
         TrajectorySettings,
         diagnose_trajectories,
+        fig_errors,
         read_tracks,
+        reference_tracks,
         simulate_tracks,
+        trajectory_errors,
     )
+    from workbench.errors import ContractError, DataError
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import RobotParams, load_robot
+    from workbench.hydro.simulator import simulation_settings
+    from workbench.project import load_params
 
     section = _section(args.params, "pipelines/diagnose.yaml", "diagnose") or {}
     traj = dict(section.get("trajectory") or {})
     if "yaw_bounds_dps" in traj:
         traj["yaw_bounds_dps"] = tuple(traj["yaw_bounds_dps"])
-    settings = TrajectorySettings(**traj)
-    model = load_leg_model(args.model)
-    if isinstance(model, AugmentedLegModel):
-        model = model.physical()     # a swimming robot meets no tunnel blockage and no load-cell drift
-    robot = load_robot(args.robot) if Path(args.robot).is_file() else RobotParams()
-    tracks = read_tracks(args.trials)
-    info(f"trajectory diagnosis of {args.model}: {len(tracks)} trials, simulating their gaits")
-    sims = simulate_tracks(tracks, args.gaits, model, robot, settings)
-    d = diagnose_trajectories(tracks, sims, args.model, settings)
-    doc = d.to_json()
-    doc["source"] = str(args.trials)
+    try:
+        settings = TrajectorySettings(**traj)
+    except TypeError as exc:
+        raise ContractError(f"bad trajectory parameter: {exc}", path=args.params) from None
+    robot, sim_kw = RobotParams(), {}
+    if Path(args.robot).is_file():
+        robot = load_robot(args.robot)
+        try:
+            sim_kw = simulation_settings((load_params(args.robot) or {}).get("simulation"))
+        except ValueError as exc:
+            raise ContractError(str(exc), path=args.robot) from None
+    tracks = read_tracks(args.trials, wall_margin_m=settings.wall_margin_m)
+    cut = [tr.trial_id for tr in tracks if tr.cut_at_wall_s is not None]
+    info(f"trajectory level on {args.trials}: {len(tracks)} trials" + (f" ({len(cut)} cut where the robot reached "
+                                                                        f"the wall: {', '.join(cut)})" if cut else ""))
+    specs = list(args.models or [args.model])
+    # the EF first: its swims warm-start the other models' fixed points
+    order = sorted(range(len(specs)), key=lambda k: specs[k] != "ef")
+    models: dict[str, dict] = {}
+    runs: dict[str, list] = {}
+    diagnoses: dict[str, object] = {}
+    warm = None
+    for k in order:
+        spec = specs[k]
+        model = load_leg_model(spec)
+        label = _model_label(spec, model)
+        if isinstance(model, AugmentedLegModel):
+            model = model.physical()     # a swimming robot meets no tunnel blockage and no load-cell drift
+        ts = time.perf_counter()
+        sims = simulate_tracks(tracks, args.gaits, model, robot, settings, sim_kw, warm=warm)
+        sim_s = time.perf_counter() - ts
+        if spec == "ef":
+            warm = sims
+        err = trajectory_errors(tracks, sims)
+        err.update({"spec": spec, "sim_seconds": round(sim_s, 1)})
+        for e in err["excluded"]:
+            info(f"  {label}: {e['trial_id']} left out: {e['reason']}")
+        try:
+            d = diagnose_trajectories(tracks, sims, label, settings)
+            err["effects"], err["unexplained"] = d.effects, d.unexplained
+            err["tests"] = d.tests
+            diagnoses[label] = d
+        except DataError as exc:
+            err["effects"], err["unexplained"] = [], []
+            err["diagnosis_error"] = str(exc)
+        models[label] = err
+        runs[label] = sims
+        info(f"  {label}: RMS position {err['rms_position_m']:.3f} m, heading {err['rms_heading_deg']:.1f} deg "
+             f"({err['n_trials']} converged swims, {sim_s:.0f} s)")
+    ordered = {}
+    for k in range(len(specs)):   # the order given on the command line
+        for lab, m in models.items():
+            if m["spec"] == specs[k]:
+                ordered[lab] = m
+    ref_doc = None
+    if args.reference:
+        ref = read_tracks(args.reference, wall_margin_m=settings.wall_margin_m)
+        d = diagnose_trajectories(tracks, reference_tracks(tracks, ref), "reference", settings,
+                                  base=str(args.reference))
+        diagnoses["reference"] = d
+        ref_doc = d.to_json()
+    main_label = "reference" if args.reference else next(iter(ordered))
+    main = diagnoses.get(main_label)
+    doc = {"schema": "workbench/trajectory-errors@1", "trials": str(args.trials), "gaits": str(args.gaits),
+           "reference": str(args.reference) if args.reference else None,
+           "wall_margin_m": settings.wall_margin_m, "cut_at_wall": cut, "models": ordered,
+           "runtime_s": round(time.perf_counter() - t0, 1)}
     with atomic_dir(Path(args.out)) as tmp:
-        write_json(tmp / "trajectory_diagnosis.json", doc)
-        fig_trajectories(tracks, sims, d, tmp / "trajectories.png")
+        write_json(tmp / "trajectory_errors.json", doc)
+        if main is not None:
+            dj = main.to_json()
+            dj["source"] = str(args.trials)
+            write_json(tmp / "trajectory_diagnosis.json", dj)
+        if ref_doc is not None:
+            write_json(tmp / "trajectory_diagnosis_reference.json", ref_doc)
+        if not args.no_figures:
+            fig_errors(tracks, runs, ordered, tmp / "trajectory_errors.png")
         _readable(tmp)
-    for e in d.effects:
-        info(f"  effect {e['name']}: {e['params']} (left-out error -{e['cv_error_reduction']:.0%})")
-    rms = doc["rms_position_error_m"]
-    info(f"  RMS position error {rms['before']:.3f} m -> {rms['after']:.3f} m")
-    info(f"wrote {args.out}/trajectory_diagnosis.json ({time.perf_counter() - t0:.1f} s)")
+    for label, d in diagnoses.items():
+        for e in d.effects:
+            info(f"  {label}: effect {e['name']}: " + ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items()))
+        for u in d.unexplained:
+            info(f"  {label}: unexplained {u['kind']}" + (f" ({u['rate_dps']:+.2f} deg/s)" if "rate_dps" in u else ""))
+    if not args.no_mlflow:
+        from workbench.diagnose.tracking import log_trajectory_diagnosis
+
+        log_trajectory_diagnosis(doc, diagnoses, Path(args.out), settings, args.tracking_uri)
+    info(f"wrote {args.out}/trajectory_errors.json, trajectory_diagnosis.json ({time.perf_counter() - t0:.1f} s)")
     return 0

@@ -1,4 +1,4 @@
-"""MLflow record of a diagnosis: one run in experiment ``diagnose`` per ``workbench diagnose``.
+"""MLflow record of a diagnosis: one run in experiment ``diagnose`` per ``workbench diagnose`` (tunnel or trajectory level).
 
 Params: the diagnosed model, the campaign, the settings (flattened). Metrics: held-out MSE per
 channel before and after, the share removed, the number of effects, and each effect's canonical
@@ -56,6 +56,62 @@ def log_diagnosis(d, out_dir: str | Path, tracking_uri: str | None = None) -> st
                 metrics[f"effect.{e.name}.{k}"] = v
     with mlflow.start_run(run_name=f"{d.campaign_id}-{d.model}"[:200], tags=tags) as run:
         mlflow.log_params({k[:250]: v for k, v in list(params.items())[:100]})
+        mlflow.log_metrics(metrics)
+        mlflow.log_artifacts(str(out_dir))
+        return run.info.run_id
+
+
+def log_trajectory_diagnosis(doc: dict, diagnoses: dict, out_dir: str | Path, settings=None,
+                             tracking_uri: str | None = None) -> str:
+    """Log a trajectory-level diagnosis (``diagnose --trials``) like the tunnel level; returns the run id.
+
+    One run in experiment ``diagnose``. Tags: ``kind`` = ``diagnose-trajectory``, the trials folder,
+    the models, the claimed effects and unexplained kinds, ``git_commit``, ``dvc_stage``. Params:
+    each model's spec, the reference session, the settings (flattened). Metrics per model label:
+    ``rms_position_m.<label>``, ``rms_heading_deg.<label>``, ``mean_final_position_m.<label>``,
+    ``n_trials.<label>``, and each effect's parameters (``effect.<label>.<name>.<param>``).
+    Artifacts: the output folder (trajectory_errors.json/.png, trajectory_diagnosis.json).
+    """
+    import logging
+
+    import mlflow
+
+    from workbench.project import git_commit, setup_mlflow
+
+    logging.getLogger("mlflow").setLevel(logging.WARNING)
+    setup_mlflow(tracking_uri, EXPERIMENT)
+    trials = Path(str(doc.get("trials", "trials"))).name
+    models = doc.get("models") or {}
+    effects = sorted({f"{lab}:{e['name']}" for lab, d in diagnoses.items() for e in d.effects})
+    unexplained = sorted({f"{lab}:{u['kind']}" for lab, d in diagnoses.items() for u in d.unexplained})
+    tags = {"kind": "diagnose-trajectory", "campaign": trials, "trials": str(doc.get("trials")),
+            "model": ",".join(models) or "none", "git_commit": git_commit(),
+            "dvc_stage": os.environ.get("DVC_STAGE", "manual"),
+            "effects": ",".join(effects) or "none", "unexplained": ",".join(unexplained) or "none"}
+    params: dict[str, str] = {"trials": str(doc.get("trials")), "gaits": str(doc.get("gaits")),
+                              "reference": str(doc.get("reference")), "wall_margin_m": str(doc.get("wall_margin_m"))}
+    for lab, m in models.items():
+        params[f"model.{lab}"] = str(m.get("spec"))
+    if settings is not None and dataclasses.is_dataclass(settings):
+        params.update(_flat(dataclasses.asdict(settings), "settings."))
+    metrics: dict[str, float] = {"runtime_s": float(doc.get("runtime_s") or 0.0)}
+    for lab, m in models.items():
+        for key in ("rms_position_m", "rms_heading_deg", "mean_final_position_m", "n_trials", "sim_seconds"):
+            if isinstance(m.get(key), (int, float)):
+                metrics[f"{key}.{lab}"] = float(m[key])
+    for lab, d in diagnoses.items():
+        j = d.to_json()
+        for key in ("rms_position_error_m", "rms_heading_error_deg"):
+            for when in ("before", "after"):
+                v = (j.get(key) or {}).get(when)
+                if isinstance(v, float):
+                    metrics[f"{key}.{when}.{lab}"] = v
+        for e in d.effects:
+            for k, v in e["params"].items():
+                if isinstance(v, float) and v == v:
+                    metrics[f"effect.{lab}.{e['name']}.{k}"] = v
+    with mlflow.start_run(run_name=f"{trials}-trajectory"[:200], tags=tags) as run:
+        mlflow.log_params({k[:250]: v[:500] for k, v in list(params.items())[:100]})
         mlflow.log_metrics(metrics)
         mlflow.log_artifacts(str(out_dir))
         return run.info.run_id
