@@ -65,6 +65,7 @@ def test_ingest_killed_at_random_moments(tmp_path):
         assert json.loads(qual.read_text()) == meta["quality"]
     timed_cli("ingest", str(raw), "--out", str(out), "--quiet", "--force")
     assert leftovers(out.parent) == [], "temporaries of killed runs were not swept"
+    print(f"ingest: {survived} of {KILLS} kills landed inside a run")
     assert survived >= 1, "no kill landed inside a run"
 
 
@@ -113,6 +114,7 @@ def test_fit_drag_killed_at_random_moments(tmp_path):
         survived += rc is None
     timed_cli("fit-drag", str(a), "--out", str(out))
     assert _drag_state(out) == "tow-a" and leftovers(out.parent) == []
+    print(f"test_fit_drag_killed_at_random_moments: {survived} of {KILLS} kills landed inside a run")
     assert survived >= 1
 
 
@@ -154,6 +156,7 @@ def test_score_trials_killed_at_random_moments(pool, tmp_path):
         survived += rc is None
     timed_cli(*one)
     assert _scores_state(out) == 1 and leftovers(out.parent) == []
+    print(f"test_score_trials_killed_at_random_moments: {survived} of {KILLS} kills landed inside a run")
     assert survived >= 1
 
 
@@ -190,4 +193,5 @@ def test_diagnose_killed_at_random_moments(tmp_path):
         survived += rc is None
     timed_cli(*base, "--out", str(out), "--max-runs", "16")
     assert _diagnosis_state(out) == n_a and leftovers(out.parent) == []
+    print(f"test_diagnose_killed_at_random_moments: {survived} of {KILLS} kills landed inside a run")
     assert survived >= 1
