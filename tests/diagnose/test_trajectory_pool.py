@@ -184,3 +184,41 @@ def test_errors_table_is_markdown():
     assert lines[0].startswith("| model |") and len(lines) == 4
     assert "| EF | 8 | 1.650 | 80.0 | 2.000 | none |" in md
     assert "7 (1 unconverged, left out)" in md and "current (cx_mps +0.01, cy_mps +0)" in md
+
+
+@pytest.mark.slow
+def test_cli_models_side_by_side_and_mlflow(tmp_path):
+    """The command: EF swims and a reference session, trajectory_errors.json/.png, one MLflow run (real sqlite store)."""
+    from workbench.cli import main
+
+    ref = _copy(tmp_path / "ref")
+    new = _copy(tmp_path / "new", current=(0.0, 0.012), yaw_dps=-1.2, noise=0.002, seed=7)
+    out = tmp_path / "out"
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    assert main(["diagnose", "--trials", str(new), "--reference", str(ref), "--models", "ef",
+                 "--gaits", str(ROOT / "datasets" / "gaits"), "--robot", str(ROOT / "pipelines" / "robot.yaml"),
+                 "--out", str(out), "--tracking-uri", uri]) == 0
+    doc = json.loads((out / "trajectory_errors.json").read_text())
+    assert list(doc["models"]) == ["EF"] and doc["models"]["EF"]["n_trials"] == 8
+    assert doc["models"]["EF"]["rms_position_m"] > 0.5
+    assert "ef-straight-2" in doc["cut_at_wall"]
+    diag = json.loads((out / "trajectory_diagnosis.json").read_text())
+    named = {e["name"]: e["params"] for e in diag["effects"]}
+    assert named["yaw_drift"]["rate_dps"] == pytest.approx(-1.2, rel=0.2)
+    assert named["current"]["cy_mps"] == pytest.approx(0.012, rel=0.2)
+    assert (out / "trajectory_errors.png").stat().st_size > 10_000
+    assert "| EF | 8 |" in errors_table(doc)
+
+    import mlflow
+
+    mlflow.set_tracking_uri(uri)
+    runs = mlflow.search_runs(experiment_names=["diagnose"], output_format="list")
+    assert len(runs) == 1
+    run = runs[0]
+    assert run.data.tags["kind"] == "diagnose-trajectory"
+    assert "reference:yaw_drift" in run.data.tags["effects"]
+    assert run.data.metrics["rms_position_m.EF"] == pytest.approx(doc["models"]["EF"]["rms_position_m"])
+    assert run.data.metrics["effect.reference.yaw_drift.rate_dps"] == pytest.approx(-1.2, rel=0.2)
+    assert run.data.params["model.EF"] == "ef"
+    arts = {a.path for a in mlflow.MlflowClient(uri).list_artifacts(run.info.run_id)}
+    assert {"trajectory_errors.json", "trajectory_diagnosis.json", "trajectory_errors.png"} <= arts
