@@ -276,3 +276,17 @@ def test_input_effects_act_on_an_expensive_models_output_through_their_hooks():
         err = np.sqrt(np.mean((sur - exact)[:, skip:] ** 2))
         moved = np.sqrt(np.mean((plain - exact)[:, skip:] ** 2))
         assert 0 < err < 0.2 * moved, (nl_lag, nl_blk, err, moved)  # the surrogate ran, and is close
+
+
+def test_an_effects_own_options_come_from_the_library_section():
+    from workbench.diagnose.loop import DiagnoseSettings
+
+    s = DiagnoseSettings.from_mapping({"library": {"effects": ["wagner_lag", "link_drag"],
+                                                   "options": {"wagner_lag": {"time_scale": 1.2},
+                                                               "link_drag": {"x_m": 0.02}}}})
+    lib = library.default_library(list(s.library.effects), s.library.link_x_m, s.library.link_quadrature, 0.7,
+                                  options=s.library.options)
+    assert lib["wagner_lag"].time_scale == 1.2
+    assert lib["link_drag"].options() == {"x_m": 0.02, "quadrature": 4}  # its own option wins over link_x_m
+    with pytest.raises(ModelError, match=r"unknown effect\(s\) \['wagner_lags'\]"):
+        library.default_library(options={"wagner_lags": {"time_scale": 1.2}})

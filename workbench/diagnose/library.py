@@ -149,19 +149,25 @@ def make_effect(name: str, options: dict | None = None) -> Effect:
 
 
 def default_library(names: list[str] | None = None, link_x_m: float = 0.01, link_quadrature: int = 4,
-                    circulatory_c_r: float = 0.7) -> EffectLibrary:
+                    circulatory_c_r: float = 0.7, options: dict[str, dict] | None = None) -> EffectLibrary:
     """The documented library (docs/diagnose.md), optionally restricted to ``names``.
 
     The keyword settings (``pipelines/diagnose.yaml`` section ``library``) reach the effects that
-    name them in :attr:`~workbench.diagnose.effects.base.Effect.library_options`.
+    name them in :attr:`~workbench.diagnose.effects.base.Effect.library_options`; ``options``
+    gives any effect its own constructor options by name (``{"wagner_lag": {"time_scale": 1.2}}``).
     """
     settings = {"link_x_m": link_x_m, "link_quadrature": link_quadrature, "circulatory_c_r": circulatory_c_r}
     reg = registry()
     names = list(reg) if not names else list(names)
+    options = dict(options or {})
+    unknown = sorted(set(options) - set(reg))
+    if unknown:
+        raise ModelError(f"library options name unknown effect(s) {unknown}", hint=f"known: {', '.join(sorted(reg))}")
     out = []
     for n in names:
         cls = reg.get(n)
         opts = {kw: settings[key] for key, kw in getattr(cls, "library_options", {}).items() if key in settings}
+        opts.update(options.get(n) or {})
         out.append(make_effect(n, opts or None))
     return EffectLibrary(out)
 

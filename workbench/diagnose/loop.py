@@ -39,6 +39,9 @@ class LibrarySettings:
     link_quadrature: int = 4
     #: drag coefficient of the force that passes the circulatory lag (null: the EF's own C_R)
     circulatory_c_r: float | None = None
+    #: constructor options per effect, ``{effect: {option: value}}`` (an effect's own knobs, e.g.
+    #: ``wagner_lag: {time_scale: 1.2}``); they win over the shared keys above
+    options: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -367,7 +370,8 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
         c_r = s.library.circulatory_c_r
         if c_r is None:
             c_r = float(getattr(getattr(model, "params", None), "c_r", 0.7))
-        library = default_library(list(s.library.effects) or None, s.library.link_x_m, s.library.link_quadrature, c_r)
+        library = default_library(list(s.library.effects) or None, s.library.link_x_m, s.library.link_quadrature, c_r,
+                                  options=s.library.options)
     selection = selection or StepwiseSelection(s.selection)
     ref_summary = None
     if reference is not None:
