@@ -140,7 +140,8 @@ def _two_commands_one_killed_worker(tmp_path, storage_arg: str):
             except Exception:  # noqa: BLE001 - the study may not exist yet
                 return False
             for t in trials:
-                if t.state.name != "RUNNING" or "command" not in t.user_attrs:
+                # a trial in training: its 7 parameters drawn
+                if t.state.name != "RUNNING" or "command" not in t.user_attrs or len(t.params) < 7:
                     continue
                 who = t.system_attrs.get(HEARTBEAT_KEY) or t.system_attrs.get(OWNER_KEY) or {}
                 if who.get("pid") in pids and who.get("trial") == t.number:
