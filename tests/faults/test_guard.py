@@ -187,3 +187,33 @@ def test_the_verb_is_found_from_the_call_stack(tmp_path):
     write_outputs(summary, tmp_path / "tune")
     marker = json.loads((tmp_path / "tune" / atomic.MARKER).read_text())
     assert marker["verb"] == "tune" and marker["written_by"] == "workbench tune"
+
+
+DEMO = Path(__file__).resolve().parents[2] / "datasets"
+
+
+@pytest.mark.skipif(not (DEMO / "raw" / "demo-tunnel").is_dir(), reason="needs the demo outputs (dvc repro)")
+def test_the_demo_outputs_of_an_existing_checkout_are_recognised_as_their_verbs():
+    """`dvc repro` on a checkout made before the marker: each stage may replace its own folder, no other."""
+    own = {"drag/demo-towing": "fit-drag", "models/fed-lstm": "train", "models/tune": "tune",
+           "scores/demo-pool": "score-trials", "diagnosis/demo-tunnel-ef": "diagnose",
+           "gaits/straight-ef": "optimize", "raw/demo-tunnel": "virtual-lab", "raw/demo-pool": "virtual-lab"}
+    for rel, verb in own.items():
+        if (DEMO / rel).is_dir():
+            assert atomic.may_replace(DEMO / rel, verb)[0], rel
+            foreign = "fit-drag" if verb == "diagnose" else "diagnose"
+            assert not atomic.may_replace(DEMO / rel, foreign)[0], rel
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (DEMO / "processed" / "demo-tunnel.parquet").is_file(), reason="needs the demo's data")
+def test_diagnose_out_named_like_the_campaign_beside_it_keeps_the_campaign(raw_campaign, capsys):
+    """The issue's report, through the real CLI: `diagnose --out c1` run where the campaign c1 lies."""
+    before = tree_hash(raw_campaign)
+    rc = main(["diagnose", "--processed", str(DEMO / "processed" / "demo-tunnel.parquet"), "--model", "ef",
+               "--no-mlflow", "--no-figures", "--effects", "servo_lag", "--max-runs", "16",
+               "--out", str(raw_campaign)])
+    assert rc == 2
+    assert "was not written by `workbench diagnose`" in capsys.readouterr().err
+    assert tree_hash(raw_campaign) == before
+    assert not [p for p in raw_campaign.parent.iterdir() if p.name.startswith(".")]
