@@ -13,7 +13,10 @@ def register(sub) -> None:
     p = add_verb(
         sub, "campaign", help="validate, register (DVC) and list tunnel / towing-tank campaigns",
         description="Work with raw campaign folders (data contract section 1). 'validate' lists every contract "
-        "violation (manifest fields, file columns, lines, trigger edges) and exits non-zero if there is any. "
+        "violation (manifest fields, file columns, lines, trigger edges) and every value outside the rig's "
+        "plausible ranges (speeds, frequencies, angles, cycles, infinite or beyond-full-scale cells; the bounds and "
+        "how to raise them with ingest.limits in pipelines/ingest.yaml: docs/campaigns.md), and exits non-zero "
+        "if there is any. "
         "'add' validates, registers the campaign in pipelines/campaigns.yaml so `dvc repro` ingests it, and "
         "tracks its raw folder with `dvc add` (folders a pipeline stage produces are already tracked). "
         "'list' shows the registered campaigns. Walk-through: docs/campaigns.md.",

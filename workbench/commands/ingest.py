@@ -18,8 +18,11 @@ def register(sub) -> None:
         "(zero-phase, 6 Hz by default) and resample the forces onto the controller's ticks, add joint angular "
         "velocities (or carriage speed), and write one Parquet file with provenance metadata plus a quality "
         "report (<name>.quality.json). A campaign with a bad run is refused, listing every bad run, unless "
-        "--skip-bad-runs. Unchanged raw files and parameters are not reprocessed. Parameters: the 'ingest' "
-        f"section of {PARAMS_FILE} (see docs/ingest.md).",
+        "--skip-bad-runs. Values outside the rig's plausible ranges are bad (docs/campaigns.md, 'Plausible "
+        "values'; raise a bound with ingest.limits in the parameter file). Unchanged raw files and parameters are "
+        "not reprocessed (a stale quality report beside them is rewritten from the Parquet metadata). --out inside "
+        "a raw campaign folder is refused: raw folders are never modified (docs/data-outputs.md). Parameters: the "
+        f"'ingest' section of {PARAMS_FILE} (see docs/ingest.md).",
         examples="""\
   workbench ingest datasets/raw/demo-tunnel                      # -> datasets/processed/demo-tunnel.parquet
   workbench ingest datasets/raw/tunnel-2025-03 --out /tmp/t.parquet
