@@ -50,7 +50,8 @@ CARRIED = (".gitignore",)
 #: older than the marker (e.g. the demo outputs of an existing checkout)
 KNOWN_OUTPUTS: dict[str, frozenset[str]] = {
     "diagnose": frozenset({"diagnosis.json", "augmented_model.json", "report.md", "figures",
-                           "trajectory_diagnosis.json", "trajectories.png"}),
+                           "trajectory_diagnosis.json", "trajectories.png", "trajectory_errors.json",
+                           "trajectory_errors.png", "trajectory_diagnosis_reference.json"}),
     "train": frozenset({"config.json", "history.csv", "learning_curve.png", "metrics.json", "model.json",
                         "split.json", "weights.pt"}),
     "tune": frozenset({"best.json", "trials.csv"}),
