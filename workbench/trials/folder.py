@@ -85,10 +85,11 @@ def score_folder(root: str | Path, params: ScoringParams | None = None, *, overl
             outcomes = (_one(j) for j in jobs)
             _collect(outcomes, results, failures, bar)
         else:
-            import multiprocessing as mp
-            from concurrent.futures import ProcessPoolExecutor, as_completed
+            from concurrent.futures import as_completed
 
-            with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_worker_init) as ex:
+            from workbench.procs import process_pool  # workers die with this process; Ctrl-C ends them
+
+            with process_pool(workers, initializer=_worker_init) as ex:
                 futs = [ex.submit(_one, j) for j in jobs]
                 _collect((f.result() for f in as_completed(futs)), results, failures, bar)
     order = [s.id for s in specs]
