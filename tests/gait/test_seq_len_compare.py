@@ -62,3 +62,14 @@ def test_missing_inputs_are_named_not_invented(tmp_path):
     assert got["pool_summary"] is None and set(got["leg_metrics"]) == {"ef", "lstm", "lstm16"}
     md = seq_len_comparison(MODELS, **got)
     assert _row(md, "| straight | - | - | 20.0")
+
+
+def test_tables_in_the_reports_shape():
+    from workbench.gait.compare import seq_len_tables
+
+    tables, notes = seq_len_tables(MODELS, leg_metrics=_leg(), gait_metrics={}, pool_summary={"by_model": {}})
+    assert [len(t) for t in tables] == [3, 3, 3]
+    for caption, head, rows in tables:
+        assert caption and all(len(r) == len(head) for r in rows)
+    assert tables[0][2][0] == ["fy_n (N^2)", "0.0134", "0.0008", "0.978", "0.0012", "0.967", "1.50"]
+    assert len(notes) == 1 and "no pool trials of FED-LSTM-16 (turn)" in notes[0]

@@ -1,7 +1,8 @@
 """Side by side: the FED-LSTM on 32-tick windows (the default) and on the paper's 16 (issue 14.6).
 
-:func:`seq_len_comparison` is pure: it takes what the pipeline already wrote, loaded as dicts, and
-returns markdown for the report. Three views of each model, each from its own file:
+:func:`seq_len_tables` is pure: it takes what the pipeline already wrote, loaded as dicts, and
+returns the report's tables (caption, header, rows); :func:`seq_len_comparison` renders them as
+markdown; :func:`load_inputs` reads the files. Three views of each model, each from its own file:
 
 * held-out accuracy: ``workbench evaluate`` metrics (``leg_models.json`` shape: per model ``mse``
   and ``r2`` per channel), best scored on the same test runs and ticks (one evaluate with
@@ -42,11 +43,18 @@ def _g(v, fmt: str = ".3g") -> str:
     return "-" if v is None else format(v, fmt)
 
 
-def seq_len_comparison(models: Sequence[tuple[str, str]], *, leg_metrics: Mapping[str, Any] | None = None,
-                       gait_metrics: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None,
-                       pool_summary: Mapping[str, Any] | None = None, pool_labels: Mapping[str, str] | None = None,
-                       channels: Sequence[str] = CHANNELS, baseline: str = "ef", cap_s: float = 60.0) -> str:
-    """Markdown comparing learned models (e.g. 32- and 16-tick FED-LSTMs) on accuracy, prediction and pool.
+Table = tuple[str, list[str], list[list[str]]]
+
+
+def seq_len_tables(models: Sequence[tuple[str, str]], *, leg_metrics: Mapping[str, Any] | None = None,
+                   gait_metrics: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None,
+                   pool_summary: Mapping[str, Any] | None = None, pool_labels: Mapping[str, str] | None = None,
+                   channels: Sequence[str] = CHANNELS, baseline: str = "ef",
+                   cap_s: float = 60.0) -> tuple[list[Table], list[str]]:
+    """Learned models (e.g. 32- and 16-tick FED-LSTMs) side by side: accuracy, prediction and pool.
+
+    Returns ``(tables, notes)``: three tables as ``(caption, header, rows)`` (the report's
+    ``Section.tables`` shape) and notes naming what was not available.
 
     ``models``: ``(key, title)`` pairs in column order, e.g. ``[("lstm", "FED-LSTM (32 ticks)"),
     ("lstm16", "FED-LSTM (16 ticks)")]``; the key names the model in ``leg_metrics`` and
@@ -58,15 +66,13 @@ def seq_len_comparison(models: Sequence[tuple[str, str]], *, leg_metrics: Mappin
     is an unfinished trial).
     """
     if not models:
-        raise ValueError("seq_len_comparison needs at least one (key, title) model")
+        raise ValueError("seq_len_tables needs at least one (key, title) model")
     keys = [k for k, _ in models]
     titles = dict(models)
-    out: list[str] = []
+    tables: list[Table] = []
     missing: list[str] = []
 
     # -- held-out accuracy -------------------------------------------------------------------
-    out.append("**Held-out accuracy** (test parameter sets; MSE and R^2 per channel on the same runs and ticks)")
-    out.append("")
     leg = leg_metrics or {}
     have_base = baseline in leg and isinstance(leg[baseline], Mapping)
     head = ["channel"] + ([f"{baseline.upper()} MSE"] if have_base else [])
@@ -74,7 +80,7 @@ def seq_len_comparison(models: Sequence[tuple[str, str]], *, leg_metrics: Mappin
         head += [f"{titles[k]} MSE", f"{titles[k]} R^2"]
     if len(keys) >= 2:
         head.append(f"MSE {titles[keys[1]]} / {titles[keys[0]]}")
-    out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = []
     for ch in channels:
         row = [f"{ch} ({MSE_UNITS.get(ch, '')})"]
         if have_base:
@@ -86,18 +92,18 @@ def seq_len_comparison(models: Sequence[tuple[str, str]], *, leg_metrics: Mappin
             a = _num(((leg.get(keys[0]) or {}).get("mse") or {}).get(ch))
             b = _num(((leg.get(keys[1]) or {}).get("mse") or {}).get(ch))
             row.append("-" if a in (None, 0.0) or b is None else f"{b / a:.2f}")
-        out.append("| " + " | ".join(row) + " |")
+        rows.append(row)
+    tables.append(("Held-out accuracy (test parameter sets; MSE and R^2 per channel on the same runs and ticks)",
+                   head, rows))
     absent = [k for k in keys if k not in leg]
     if absent:
         missing.append(f"no held-out metrics for {', '.join(absent)}")
 
     # -- the optimiser's prediction -----------------------------------------------------------
-    out += ["", "**Optimiser** (NSGA-II, each model's own prediction for its best gait: f3 = time to finish "
-            f"the trials' task, s; {cap_s:g} s or more = not finished; S = w1 f1 + w2 f2 + w3 f3, lower is better)", ""]
     head = ["task"]
     for k in keys:
         head += [f"{titles[k]} best f3 (s)", f"{titles[k]} best S"]
-    out += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = []
     gm = gait_metrics or {}
     for task in TASKS:
         row = [task]
@@ -110,12 +116,13 @@ def seq_len_comparison(models: Sequence[tuple[str, str]], *, leg_metrics: Mappin
             f3 = _num(m.get("best_f3"))
             f3_txt = "-" if f3 is None else (f"not finished ({f3:.1f})" if f3 >= cap_s else f"{f3:.1f}")
             row += [f3_txt, _g(m.get("best_score"), ".2f")]
-        out.append("| " + " | ".join(row) + " |")
+        rows.append(row)
+    tables.append(("Optimiser (NSGA-II): each model's own prediction for its best gait; f3 = time to finish the "
+                   f"trials' task (s; {cap_s:g} s or more = not finished); S = w1 f1 + w2 f2 + w3 f3, lower is "
+                   "better", head, rows))
 
     # -- the virtual pool ---------------------------------------------------------------------
-    out += ["", "**Virtual pool** (the retained gaits swum on the virtual truth and scored from video; "
-            f"best time among finished trials; unfinished trials within {cap_s:g} s are counted, not timed)", ""]
-    out += ["| task | model | finished | best time (s) | median time (s) | median score |", "|---|---|---|---|---|---|"]
+    rows = []
     by_model = (pool_summary or {}).get("by_model") or {}
     if pool_summary is None:
         missing.append("no pool summary")
@@ -125,7 +132,7 @@ def seq_len_comparison(models: Sequence[tuple[str, str]], *, leg_metrics: Mappin
             label = _pool_label(k, pool_labels)
             st = (by_model.get(label) or {}).get(task)
             if not st:
-                out.append(f"| {task} | {titles[k]} | - | - | - | - |")
+                rows.append([task, titles[k], "-", "-", "-", "-"])
                 if pool_summary is not None:
                     missing.append(f"no pool trials of {label} ({task})")
                 continue
@@ -136,10 +143,24 @@ def seq_len_comparison(models: Sequence[tuple[str, str]], *, leg_metrics: Mappin
             med = _num(times.get("median"))
             med_txt = "-" if med is None else (f">= {cap_s:g} (unfinished)" if med >= cap_s else f"{med:.1f}")
             second = (st.get(name) or {}).get("median")
-            out.append(f"| {task} | {titles[k]} | {done}/{n} | {best_txt} | {med_txt} | {unit} {_g(second)} |")
-    if missing:
-        out += ["", "Not available: " + "; ".join(dict.fromkeys(missing)) + "."]
-    return "\n".join(out) + "\n"
+            rows.append([task, titles[k], f"{done}/{n}", best_txt, med_txt, f"{unit} {_g(second)}"])
+    tables.append(("Virtual pool: the retained gaits swum on the virtual truth and scored from video (best time "
+                   f"among finished trials; unfinished trials within {cap_s:g} s are counted, not timed)",
+                   ["task", "model", "finished", "best time (s)", "median time (s)", "median score"], rows))
+    notes = ["Not available: " + "; ".join(dict.fromkeys(missing)) + "."] if missing else []
+    return tables, notes
+
+
+def seq_len_comparison(models: Sequence[tuple[str, str]], **kwargs) -> str:
+    """The same comparison as markdown (:func:`seq_len_tables` arguments): bold captions, tables, notes."""
+    tables, notes = seq_len_tables(models, **kwargs)
+    out: list[str] = []
+    for caption, head, rows in tables:
+        out += [f"**{caption}**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        out += ["| " + " | ".join(r) + " |" for r in rows]
+        out.append("")
+    out += notes
+    return "\n".join(out).rstrip("\n") + "\n"
 
 
 def _pool_label(key: str, labels: Mapping[str, str] | None) -> str:
@@ -150,13 +171,13 @@ def _pool_label(key: str, labels: Mapping[str, str] | None) -> str:
     return model_display_label(key)
 
 
-def load_inputs(models: Sequence[str], *, leg_metrics_paths: Sequence[str] = (), gaits_dir: str = "datasets/gaits",
-                pool_summary_path: str | None = None) -> dict:
+def load_inputs(models: Sequence[str], *, leg_metrics_paths: Sequence = (), gaits_dir="datasets/gaits",
+                pool_summary_path=None) -> dict:
     """Read the files :func:`seq_len_comparison` compares (missing files are left out, not errors).
 
     ``leg_metrics_paths``: evaluate outputs, merged in order (a later file's model keys win);
     gait metrics ``<gaits_dir>/<task>-<key>.metrics.json``; the pool's summary.json. Returns the
-    keyword arguments ``leg_metrics``, ``gait_metrics`` and ``pool_summary``.
+    keyword arguments ``leg_metrics``, ``gait_metrics`` and ``pool_summary`` of :func:`seq_len_tables`.
     """
     import json
     from pathlib import Path
