@@ -46,8 +46,11 @@ def model_label(spec: str) -> str:
 
 
 def model_source(model) -> dict:
-    """Where a loaded leg model came from, from its ``describe()``: ``model_uri``, ``model_version``,
-    ``run_id`` (a registry spec, resolved) and ``model_path`` (a saved folder), those known; {} for built-ins."""
+    """Where a loaded leg model came from, read from its ``describe()``; {} for built-in models.
+
+    Keys, those known: ``model_uri``, ``model_version`` and ``run_id`` (a registry spec, resolved to
+    the version used) and ``model_path`` (a saved folder).
+    """
     d = model.describe() if hasattr(model, "describe") else {}
     return {k: str(d[k]) for k in ("model_uri", "model_version", "run_id", "model_path") if d.get(k) is not None}
 
