@@ -196,6 +196,7 @@ def test_cli_models_side_by_side_and_mlflow(tmp_path):
     out = tmp_path / "out"
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     assert main(["diagnose", "--trials", str(new), "--reference", str(ref), "--models", "ef",
+                 "--metrics", str(tmp_path / "metrics.json"),
                  "--gaits", str(ROOT / "datasets" / "gaits"), "--robot", str(ROOT / "pipelines" / "robot.yaml"),
                  "--out", str(out), "--tracking-uri", uri]) == 0
     doc = json.loads((out / "trajectory_errors.json").read_text())
@@ -208,6 +209,8 @@ def test_cli_models_side_by_side_and_mlflow(tmp_path):
     assert named["current"]["cy_mps"] == pytest.approx(0.012, rel=0.2)
     assert (out / "trajectory_errors.png").stat().st_size > 10_000
     assert "| EF | 8 |" in errors_table(doc)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())["trajectory_error"]
+    assert metrics["EF"]["rms_position_m"] == doc["models"]["EF"]["rms_position_m"]
 
     import mlflow
 

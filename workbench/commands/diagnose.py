@@ -68,6 +68,8 @@ def register(sub) -> None:
                    "what changed since (a new servo, load cell, mount, pump) is diagnosed. With --trials: a "
                    "reference pool session (score-trials folder, the same gaits swum before): its tracks are the "
                    "base, so a yaw drift can be named (without one it is only reported)")
+    p.add_argument("--metrics", metavar="JSON",
+                   help="with --trials: also write the models' RMS errors here (flat JSON for `dvc metrics`)")
     p.add_argument("--effects", metavar="LIST", help="comma-separated candidate effects (default: the whole library)")
     p.add_argument("--max-runs", type=int, metavar="N", help="analyse at most N runs (whole parameter sets)")
     p.add_argument("--skip-bad-runs", action="store_true", help="ingest the good runs of a campaign with bad ones")
@@ -361,6 +363,11 @@ def _run_trajectories(args, t0: float) -> int:
             info(f"  {label}: effect {e['name']}: " + ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items()))
         for u in d.unexplained:
             info(f"  {label}: unexplained {u['kind']}" + (f" ({u['rate_dps']:+.2f} deg/s)" if "rate_dps" in u else ""))
+    if args.metrics:
+        flat = {label: {k: m.get(k) for k in ("rms_position_m", "rms_heading_deg", "mean_final_position_m",
+                                               "n_trials")} for label, m in ordered.items()}
+        Path(args.metrics).parent.mkdir(parents=True, exist_ok=True)
+        write_json(Path(args.metrics), {"trajectory_error": flat})
     if not args.no_mlflow:
         from workbench.diagnose.tracking import log_trajectory_diagnosis
 
