@@ -182,7 +182,7 @@ def test_errors_table_is_markdown():
     md = errors_table(doc)
     lines = md.strip().splitlines()
     assert lines[0].startswith("| model |") and len(lines) == 4
-    assert "| EF | 8 | 1.650 | 80.0 | 2.000 | none |" in md
+    assert "| EF | 8 | 1.650 | 80.0 | 2.000 | none | - |" in md
     assert "7 (1 unconverged, left out)" in md and "current (cx_mps +0.01, cy_mps +0)" in md
 
 

@@ -514,21 +514,32 @@ def trajectory_errors(tracks: list[Track], sims: list[SimTrack | None]) -> dict:
             "n_trials": len(per), "excluded": excluded, "per_trial": per}
 
 
-def errors_table(doc: dict) -> str:
-    """Markdown table "Trajectory error: models side by side" from a ``trajectory_errors.json`` document."""
-    models = doc.get("models") or {}
-    lines = ["| model | trials | RMS position (m) | RMS heading (deg) | mean final position (m) | effects named |",
-             "|---|---|---|---|---|---|"]
+ERRORS_HEADER = ["model", "trials", "RMS position (m)", "RMS heading (deg)", "mean final position (m)",
+                 "effects named", "reported"]
 
+
+def errors_rows(doc: dict) -> tuple[list[str], list[list[str]]]:
+    """(header, rows) of "Trajectory error: models side by side" from a ``trajectory_errors.json`` document."""
     def f(v, fmt):
-        return "-" if v is None else format(v, fmt)
+        return "-" if not isinstance(v, (int, float)) else format(v, fmt)
 
-    for label, m in models.items():
+    rows = []
+    for label, m in (doc.get("models") or {}).items():
         eff = ", ".join(f"{e['name']} ({', '.join(f'{k} {v:+.3g}' for k, v in e['params'].items())})"
                         for e in m.get("effects", [])) or "none"
+        rep = ", ".join(u["kind"] + (f" {u['rate_dps']:+.2f} deg/s" if isinstance(u.get("rate_dps"), float) else "")
+                        for u in m.get("unexplained", [])) or "-"
         n = f"{m.get('n_trials', 0)}" + (f" ({len(m['excluded'])} unconverged, left out)" if m.get("excluded") else "")
-        lines.append(f"| {label} | {n} | {f(m.get('rms_position_m'), '.3f')} | {f(m.get('rms_heading_deg'), '.1f')} | "
-                     f"{f(m.get('mean_final_position_m'), '.3f')} | {eff} |")
+        rows.append([label, n, f(m.get("rms_position_m"), ".3f"), f(m.get("rms_heading_deg"), ".1f"),
+                     f(m.get("mean_final_position_m"), ".3f"), eff, rep])
+    return list(ERRORS_HEADER), rows
+
+
+def errors_table(doc: dict) -> str:
+    """Markdown table "Trajectory error: models side by side" from a ``trajectory_errors.json`` document."""
+    header, rows = errors_rows(doc)
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
 
