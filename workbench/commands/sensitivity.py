@@ -36,7 +36,10 @@ def run(args) -> int:
     import json
     from pathlib import Path
 
-    from workbench.atomic import write_bytes, write_json
+    from workbench.atomic import atomic_dir, check_replaceable, write_json
+
+    check_replaceable(args.out, "sensitivity")  # a wrong --out is refused before the work, not after
+
     from workbench.commands.simulate import read_gaits_file
     from workbench.console import info
     from workbench.errors import ContractError
@@ -71,8 +74,9 @@ def run(args) -> int:
                              progress=lambda k: info(f"  {k}/{total} simulations") if k % step == 0 else None)
     out = Path(args.out)
     summary = result.to_dict() | {"gaits_file": str(args.gaits), "model": args.model, "robot": str(args.robot)}
-    write_json(out / "sensitivity.json", summary)
-    write_bytes(out / "sensitivity.png", figure_png(result))
+    with atomic_dir(out, verb="sensitivity") as tmp:  # indices and figure are one set
+        write_json(tmp / "sensitivity.json", summary)
+        (tmp / "sensitivity.png").write_bytes(figure_png(result))
     r = summary["ranking"]
     info(f"ranking: Kendall tau min {r['kendall_tau_min']:.2f}, mean {r['kendall_tau_mean']:.2f}; nominal best "
          f"stays best in {100 * r['nominal_best_stays_best_fraction']:.0f}% of the samples")

@@ -108,7 +108,10 @@ def run(args) -> int:
     """Load gaits, robot and leg model, simulate the batch, write the outputs."""
     from pathlib import Path
 
-    from workbench.atomic import atomic_path, write_bytes, write_json
+    from workbench.atomic import atomic_dir, check_replaceable, write_json
+
+    check_replaceable(args.out, "simulate")  # a wrong --out is refused before the work, not after
+
     from workbench.console import info
     from workbench.errors import ContractError
     from workbench.hydro.legmodel import load_leg_model
@@ -155,10 +158,10 @@ def run(args) -> int:
                "unconverged": [labels[i] for i in bad], "gaits": summarise(traj, labels)}
     png = paths_figure_png(traj, labels)
     out = Path(args.out)
-    with atomic_path(out / "trajectory.parquet", suffix=".parquet") as tmp:
-        frame.write_parquet(tmp)
-    write_bytes(out / "paths.png", png)
-    write_json(out / "summary.json", summary)
+    with atomic_dir(out, verb="simulate") as tmp:  # the three files are one set, swapped in together
+        frame.write_parquet(tmp / "trajectory.parquet")
+        (tmp / "paths.png").write_bytes(png)
+        write_json(tmp / "summary.json", summary)
     for g in summary["gaits"]:
         info(f"{g['gait']}: end ({g['final_x_m']:+.3f}, {g['final_y_m']:+.3f}) m, yaw {g['final_yaw_deg']:+.1f} deg, "
              f"forward speed {g['mean_forward_speed_mps']:.3f} m/s")
