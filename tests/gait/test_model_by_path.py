@@ -145,3 +145,12 @@ def test_optimize_by_path_with_label_and_by_alias_give_the_same_gaits(tmp_path, 
     assert tags["lstm16"]["model_path"] == str(saved) and tags["lstm16"]["model_spec"] == str(saved)
     assert tags["lstm"]["model_version"] == version and tags["lstm"]["model_run_id"] == run_id
     assert tags["lstm"]["model_uri"] == "models:/fed-lstm@champion"
+
+
+def test_default_label_of_a_folder_is_its_name(saved):
+    from workbench.gait.export import model_label
+
+    assert model_label(str(saved)) == "fed-lstm-16" == model_label(str(saved / "model.json"))
+    assert (model_label("ef"), model_label("lstm"), model_label("models:/fed-lstm@tuned")) == \
+        ("ef", "lstm", "fed-lstm-tuned")
+    assert model_label("no/such/folder") == "no-such-folder"   # not a path on disk: the spec as before
