@@ -51,7 +51,8 @@ def registry(tmp_path, saved, monkeypatch):
     with mlflow.start_run() as run:
         mlflow.log_artifacts(str(saved), artifact_path="model")
         version = register_model(run, "fed-lstm", "champion")
-    return uri, version, run.info.run_id
+    yield uri, version, run.info.run_id
+    mlflow.set_tracking_uri(None)   # leave no process-wide store behind for other tests
 
 
 @pytest.mark.slow

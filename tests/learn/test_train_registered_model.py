@@ -4,6 +4,7 @@ champion; the 32-tick champion stays where it was; the folder and the registered
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -29,6 +30,7 @@ def test_sixteen_tick_model_registers_under_its_own_name(project, parquet, tmp_p
     placeholder = tmp_path / "placeholder"
     placeholder.mkdir()
     (placeholder / "model.json").write_text(json.dumps({"schema": "workbench/learned-leg-model@1"}))
+    mlflow.set_tracking_uri(os.environ["MLFLOW_TRACKING_URI"])   # the isolated project's store
     mlflow.set_experiment("fed-lstm")
     with mlflow.start_run() as run:
         mlflow.log_artifacts(str(placeholder), artifact_path="model")
