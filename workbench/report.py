@@ -272,7 +272,7 @@ def trials_section(datasets: Path) -> Section:
 #: the trials' protocol (data contract section 2): what a gait file's task must match to be comparable
 TRIAL_PROTOCOL = {"straight": {"cap_s": 60.0, "finish_distance_m": 2.0}, "turn": {"cap_s": 60.0, "target_yaw_deg": 360.0}}
 #: pool labels of the pipeline's model keys (the virtual pool's truth.json says so too)
-MODEL_LABELS = {"ef": "EF", "lstm": "FED-LSTM"}
+MODEL_LABELS = {"ef": "EF", "lstm": "FED-LSTM", "lstm16": "FED-LSTM-16"}
 
 
 def _read_scores(scores_dir: Path) -> list[dict]:
@@ -374,6 +374,25 @@ def pool_verdict(datasets: Path, scores_dir: Path) -> list[str]:
     return out
 
 
+def seq_len_section(datasets: Path) -> Section:
+    """The paper's 16-tick FED-LSTM beside the 32-tick default: accuracy, the optimiser's predictions, the pool."""
+    from workbench.gait.compare import load_inputs, seq_len_tables
+
+    sec = Section("The paper's 16-tick FED-LSTM beside the 32-tick default")
+    if not (datasets / "models" / "fed-lstm-16").is_dir() and not list((datasets / "gaits").glob("*-lstm16.json")):
+        sec.paragraphs.append("No 16-tick model in this project (dvc.yaml stage train_16).")
+        return sec
+    pool = sorted((datasets / "scores").glob("*/summary.json"))
+    inputs = load_inputs(["lstm", "lstm16"], leg_metrics_paths=[datasets / "metrics" / "leg_models.json"],
+                         gaits_dir=datasets / "gaits", pool_summary_path=pool[0] if pool else None)
+    tables, notes = seq_len_tables([("lstm", "FED-LSTM (32 ticks)"), ("lstm16", "FED-LSTM (16 ticks, paper)")],
+                                   **inputs)
+    sec.tables += tables
+    sec.paragraphs += notes
+    sec.figures += [p for p in (datasets / "models" / "fed-lstm-16" / "learning_curve.png",) if p.is_file()]
+    return sec
+
+
 def sensitivity_section(datasets: Path) -> Section:
     """How much the robot constants the paper does not give move the gait scores and ranking (Sobol)."""
     sec = Section("Sensitivity to the estimated robot constants")
@@ -466,7 +485,7 @@ def collect(datasets: Path, tracking_uri: str | None = None, ui_url: str = "http
             with_mlflow: bool = True) -> list[Section]:
     """All report sections, in the order the data flows through the workbench."""
     secs = [campaigns_section(datasets), drag_section(datasets), leg_models_section(datasets),
-            gaits_section(datasets), sensitivity_section(datasets), trials_section(datasets),
+            gaits_section(datasets), sensitivity_section(datasets), trials_section(datasets), seq_len_section(datasets),
             diagnosis_section(datasets)]
     if with_mlflow:
         secs.append(mlflow_section(tracking_uri, ui_url))
