@@ -82,6 +82,40 @@ def apply_profile(copy: Path, profile: dict) -> list[str]:
     return changed
 
 
+def drop_stages(copy: Path, names: list[str]) -> list[str]:
+    """Remove whole stages from the copy's dvc.yaml, and every other stage's deps on their outputs."""
+    if not names:
+        return []
+    path = copy / "dvc.yaml"
+    doc = yaml.safe_load(path.read_text())
+    stages = doc["stages"]
+    gone: list[str] = []
+    for name in names:
+        if name not in stages:
+            raise SystemExit(f"profile: dvc.yaml has no stage {name!r} to drop")
+        st = stages.pop(name)
+        items = st.get("foreach") or [None]
+        body = st.get("do", st)
+        for out in body.get("outs", []) or []:
+            out = out if isinstance(out, str) else next(iter(out))
+            gone += [out.replace("${item}", str(i)) if i is not None else out for i in items]
+    for st in stages.values():
+        body = st.get("do", st)
+        # an option whose value names a dropped output goes too (evaluate's --also lstm16=<folder>)
+        tokens = str(body["cmd"]).split()
+        keep = []
+        for tok in tokens:
+            if any(g in tok for g in gone) and keep and keep[-1].startswith("--"):
+                keep.pop()
+                continue
+            keep.append(tok)
+        body["cmd"] = " ".join(keep)
+        if body.get("deps"):
+            body["deps"] = [d for d in body["deps"] if (d if isinstance(d, str) else next(iter(d))) not in gone]
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return [f"dvc.yaml: stage {n} dropped" for n in names]
+
+
 def make_copy(target: Path) -> Path:
     if target.exists():
         if not (target / MARKER).exists():
@@ -187,7 +221,7 @@ def main(argv=None) -> int:
     name = profile.get("name", Path(args.profile).stem)
     target = Path(args.dir) if args.dir else Path(tempfile.mkdtemp(prefix=f"workbench-{name}-")) / "project"
     copy = make_copy(target)
-    changed = apply_profile(copy, profile)
+    changed = apply_profile(copy, profile) + drop_stages(copy, list(profile.get("drop_stages") or []))
     print(f"profile {name}: copy at {copy}", flush=True)
     for c in changed:
         print("  " + c)
