@@ -177,55 +177,56 @@ def location_params() -> set[str]:
     return {p for cls in registry().values() for p in cls.location_params}
 
 
+class TruthView:
+    """A virtual campaign's rich truth as effects read it (:meth:`Effect.truth_params`).
+
+    ``p``: the truth's parameters; ``geo``: its geometry; ``ef``: the EF's parameters (the base
+    the values are relative to); and the quantities several effects share: ``c_n`` (C_N90),
+    ``m_a`` (the plate's added mass, DNV), ``web`` (the web's mass), ``structure_kgpm`` and
+    ``link_added_kgpm`` (the links' mass and added mass per length), ``net`` (weight minus
+    buoyancy of thigh, calf and web, N, + up).
+    """
+
+    def __init__(self, truth: dict, ef_params=None):
+        from workbench.hydro.ef import EFParams
+
+        p = self.p = dict(truth.get("params", {}))
+        geo = self.geo = dict(truth.get("geometry", {}))
+        self.ef = ef_params or EFParams()
+        rho, g = p.get("rho_kgpm3", 1000.0), p.get("gravity_mps2", 9.81)
+        side = geo.get("web_side_m", 0.06)
+        self.m_a = rho * p.get("added_mass_coeff", 0.579) * np.pi / 4 * side ** 3
+        self.web = p.get("web_mass_kg", 0.01)
+        self.c_n = p.get("c_n90", 1.17)
+        thigh_len = geo.get("oc_m", 0.125)
+        calf_len = geo.get("bq_over_bc", 2.5) * geo.get("oa_m", 0.035) - side / 2
+        d = p.get("link_diameter_m", 0.006)
+        self.link_added_kgpm = p.get("link_added_mass_coeff", 1.0) * rho * np.pi * d * d / 4
+        self.structure_kgpm = (p.get("thigh_mass_kg", 0.02) + p.get("calf_mass_kg", 0.012)) / (thigh_len + calf_len)
+        self.net = {k: (rho * p.get(f"{k}_volume_m3", 0.0) - p.get(f"{k}_mass_kg", 0.0)) * g
+                    for k in ("thigh", "calf", "web")}
+
+
 def truth_reference(truth: dict, ef_params=None) -> dict[str, dict[str, float]]:
     """The canonical parameters a virtual campaign's rich truth gives the library's effects, with the EF as base.
 
     ``truth`` is the ``truth`` block of a virtual campaign's ``truth.json`` (what
     ``TrueLegModel.describe()`` writes); the values are what a perfect diagnosis of the EF on that
-    campaign would report, for the report to show beside the fitted ones. Terms the library does
-    not hold exactly are mapped to their nearest reading and say so in ``notes``: the links'
-    added mass acts along their normal only, while ``link_inertia.m_kgpm`` takes structure and
-    added mass on the whole acceleration; the lateral force is a fraction of the *lagged* normal
-    force in the truth. Returns ``{}`` for a truth other than ``rich``.
+    campaign would report, for the report to show beside the fitted ones. Each effect reads its
+    own values (:meth:`Effect.truth_params`); terms the library does not hold exactly are mapped
+    to their nearest reading and say so in ``notes`` (``effect.param``: why). Returns ``{}`` for a
+    truth other than ``rich``.
     """
-    from workbench.hydro.ef import EFParams
-
     if truth.get("truth") != "rich":
         return {}
-    p = dict(truth.get("params", {}))
-    geo = dict(truth.get("geometry", {}))
-    ef = ef_params or EFParams()
-    rho, g = p.get("rho_kgpm3", 1000.0), p.get("gravity_mps2", 9.81)
-    side = geo.get("web_side_m", 0.06)
-    m_a = rho * p.get("added_mass_coeff", 0.579) * np.pi / 4 * side ** 3
-    web = p.get("web_mass_kg", 0.01)
-    c_n = p.get("c_n90", 1.17)
-    frac = p.get("circulatory_fraction", 1.0) if p.get("lag", "wagner") == "wagner" else 0.0
-    amps = p.get("wagner_amplitudes", (0.165, 0.335))
-    rates = p.get("wagner_rates", (0.0455, 0.3))
-    thigh_len = geo.get("oc_m", 0.125)
-    calf_len = geo.get("bq_over_bc", 2.5) * geo.get("oa_m", 0.035) - side / 2
-    d = p.get("link_diameter_m", 0.006)
-    added_per_len = p.get("link_added_mass_coeff", 1.0) * rho * np.pi * d * d / 4
-    structure = (p.get("thigh_mass_kg", 0.02) + p.get("calf_mass_kg", 0.012)) / (thigh_len + calf_len)
-    net = {k: (rho * p.get(f"{k}_volume_m3", 0.0) - p.get(f"{k}_mass_kg", 0.0)) * g for k in ("thigh", "calf", "web")}
-    out = {
-        "normal_force_law": {"c_n90": c_n},
-        "drag_coefficient_error": {"delta_c": -ef.c_r + p.get("extra_normal_drag_c", 0.0)},
-        "wagner_lag": {"a_slow": c_n * frac * amps[0], "a_fast": c_n * frac * amps[1],
-                       "tau_slow_chords": 1 / (2 * rates[0]), "tau_fast_chords": 1 / (2 * rates[1])},
-        "rotating_added_mass": {"m_a_kg": m_a if p.get("rotating_added_mass", True) else 0.0},
-        "added_mass_kc": {"m_kc_kg": m_a * p.get("kc_gain", 0.0)},
-        "added_mass_error": {"delta_kg": m_a + web - ef.added_mass_kg - ef.m_web_kg + p.get("extra_added_mass_kg", 0.0)},
-        "link_drag": {"cd_d_m": p.get("link_cd_d_m", 0.0) + p.get("extra_link_cd_d_m", 0.0)},
-        "link_inertia": {"m_kgpm": structure + added_per_len, "web_t_kg": web},
-        "lateral_force": {"c_lat": p.get("lateral_fraction", 0.0) * c_n},
-        "link_weight_buoyancy": {"net_thigh_n": net["thigh"], "net_calf_n": net["calf"], "net_web_n": net["web"],
-                                 "net_n": sum(net.values())},
-        "leg_weight_buoyancy": {"net_n": sum(net.values())},
-        "notes": {"link_inertia.m_kgpm": f"structure {structure:.3g} kg/m on the whole acceleration + added mass "
-                                         f"{added_per_len:.3g} kg/m along the links' normal only",
-                  "lateral_force.c_lat": "a fraction of the lagged normal force in the truth (the fit sees less)",
-                  "added_mass_error.delta_kg": "truth's m_a + web mass - the EF's 2 pi rho a^3 + m_web on a_n"},
-    }
+    view = TruthView(truth, ef_params)
+    out: dict = {}
+    notes: dict[str, str] = {}
+    for name, cls in registry().items():
+        params = cls.truth_params(view)
+        if params is None:
+            continue
+        out[name] = params
+        notes.update({f"{name}.{k}": v for k, v in cls.truth_notes(view).items()})
+    out["notes"] = notes
     return out

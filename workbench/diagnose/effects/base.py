@@ -266,6 +266,21 @@ class Effect:
         """Remarks on the fitted parameters for the report (what an entry stands for)."""
         return []
 
+    # ------------------------------------------------------------- a virtual truth
+    @classmethod
+    def truth_params(cls, t) -> dict[str, float] | None:
+        """This effect's canonical parameters in a virtual campaign's rich truth (None: it has no counterpart).
+
+        ``t``: :class:`workbench.diagnose.library.TruthView`, the truth's parameters, geometry and
+        the quantities several effects share (the plate's added mass, the links' masses, ...).
+        """
+        return None
+
+    @classmethod
+    def truth_notes(cls, t) -> dict[str, str]:
+        """Where :meth:`truth_params` is only the nearest reading of the truth: a note per parameter."""
+        return {}
+
 
 class EffectLibrary:
     """A composable set of candidate effects (``a + b + c``)."""

@@ -22,6 +22,14 @@ class AddedMassError(Effect):
     ranges = {"delta_kg": (-0.5, 0.5)}
     formula = "dF_n = -delta_kg * a_n (web normal, at Q)"
 
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"delta_kg": t.m_a + t.web - t.ef.added_mass_kg - t.ef.m_web_kg + t.p.get("extra_added_mass_kg", 0.0)}
+
+    @classmethod
+    def truth_notes(cls, t):  # noqa: D102
+        return {"delta_kg": "truth's m_a + web mass - the EF's 2 pi rho a^3 + m_web on a_n"}
+
     def hint(self, ev, params: dict) -> str:  # noqa: D102
         return ccf_clause(ev, "model_force_accel", "the model's force derivatives")
 
@@ -38,6 +46,10 @@ class DragCoefficientError(Effect):
     name = "drag_coefficient_error"
     ranges = {"delta_c": (-3.0, 3.0)}
     formula = "dF_n = 0.5 rho S delta_c |V_n| V_n (web normal, at Q)"
+
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"delta_c": -t.ef.c_r + t.p.get("extra_normal_drag_c", 0.0)}
 
     def linear_names(self):  # noqa: D102
         return ["delta_c"]
@@ -67,6 +79,10 @@ class LinkDrag(Effect):
     ranges = {"cd_d_m": (-0.1, 0.1)}
     formula = "dF/dl = 0.5 rho cd_d_m |V_n| V_n along thigh and calf"
 
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"cd_d_m": t.p.get("link_cd_d_m", 0.0) + t.p.get("extra_link_cd_d_m", 0.0)}
+
     library_options = {"link_x_m": "x_m", "link_quadrature": "quadrature"}
 
     def __init__(self, x_m: float = 0.01, quadrature: int = 4):
@@ -92,6 +108,10 @@ class LegWeightBuoyancy(Effect):
     name = "leg_weight_buoyancy"
     ranges = {"net_n": (-5.0, 5.0), "arm_m": (-0.1, 0.4)}
     formula = "fz += net_n; (tx, ty) += net_n arm_m (X_Q, -x_Q) / |Q|"
+
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"net_n": sum(t.net.values())}
     location_params = ("arm_m",)
 
     def hint(self, ev, params: dict) -> str:  # noqa: D102
@@ -167,6 +187,10 @@ class NormalForceLaw(Effect):
     ranges = {"c_n90": (-1.0, 2.5)}
     formula = "dF_n = c_n90 0.5 rho L int |V(s)| V_n(s) ds over the chord (+ its couple about Q)"
 
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"c_n90": t.c_n}
+
     def __init__(self, quadrature: int = 5):
         self.quadrature = int(quadrature)
 
@@ -205,6 +229,15 @@ class WagnerLag(Effect):
     ranges = {"a_slow": (0.0, 1.5), "a_fast": (0.0, 1.5)}
     formula = ("dF = sum_i a_i (L_i F_N - F_N), L_i first-order lags of tau_i c / max(|V_rel|, 0.05), "
                "tau = (10.99, 1.667) chords (Jones); F_N the normal-force law")
+
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        frac = t.p.get("circulatory_fraction", 1.0) if t.p.get("lag", "wagner") == "wagner" else 0.0
+        amps = t.p.get("wagner_amplitudes", (0.165, 0.335))
+        rates = t.p.get("wagner_rates", (0.0455, 0.3))
+        return {"a_slow": t.c_n * frac * amps[0], "a_fast": t.c_n * frac * amps[1],
+                "tau_slow_chords": 1 / (2 * rates[0]), "tau_fast_chords": 1 / (2 * rates[1])}
+
     #: Jones' time constants in chords: 1 / (2 * 0.0455) and 1 / (2 * 0.3)
     JONES_CHORDS = (1.0 / (2 * 0.0455), 1.0 / (2 * 0.3))
 
@@ -259,6 +292,10 @@ class RotatingAddedMass(Effect):
     ranges = {"m_a_kg": (-0.1, 0.5)}
     formula = "dF_n = -m_a_kg omega v_t (web rate x tangential relative velocity)"
 
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"m_a_kg": t.m_a if t.p.get("rotating_added_mass", True) else 0.0}
+
     def linear_names(self):  # noqa: D102
         return ["m_a_kg"]
 
@@ -279,6 +316,10 @@ class AddedMassKC(Effect):
     name = "added_mass_kc"
     ranges = {"m_kc_kg": (-0.1, 0.2)}
     formula = "dF_n = -m_kc_kg KC^(2/3) (a_n + omega v_t), KC = 2 pi A / L per run"
+
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"m_kc_kg": t.m_a * t.p.get("kc_gain", 0.0)}
 
     def __init__(self, exponent: float = 2.0 / 3.0):
         self.exponent = float(exponent)
@@ -308,6 +349,15 @@ class LinkInertia(Effect):
     name = "link_inertia"
     ranges = {"m_kgpm": (-0.1, 1.0), "web_t_kg": (-0.05, 0.2)}
     formula = "dF = -m_kgpm a dl along thigh and calf; dF_t = -web_t_kg a_t at Q"
+
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"m_kgpm": t.structure_kgpm + t.link_added_kgpm, "web_t_kg": t.web}
+
+    @classmethod
+    def truth_notes(cls, t):  # noqa: D102
+        return {"m_kgpm": f"structure {t.structure_kgpm:.3g} kg/m on the whole acceleration + added mass "
+                          f"{t.link_added_kgpm:.3g} kg/m along the links' normal only"}
 
     library_options = {"link_x_m": "x_m", "link_quadrature": "quadrature"}
 
@@ -350,6 +400,14 @@ class LateralForce(Effect):
     ranges = {"c_lat": (-0.5, 0.5)}
     formula = "fx = c_lat 0.5 rho S |V| V_n at Q (ty, tz from its arm)"
 
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"c_lat": t.p.get("lateral_fraction", 0.0) * t.c_n}
+
+    @classmethod
+    def truth_notes(cls, t):  # noqa: D102
+        return {"c_lat": "a fraction of the lagged normal force in the truth (the fit sees less)"}
+
     def linear_names(self):  # noqa: D102
         return ["c_lat"]
 
@@ -374,6 +432,12 @@ class LinkWeightBuoyancy(Effect):
     name = "link_weight_buoyancy"
     ranges = {"net_thigh_n": (-2.0, 2.0), "net_calf_n": (-2.0, 2.0), "net_web_n": (-2.0, 2.0)}
     formula = "vertical net_<part>_n spread along thigh and calf, at Q for the web"
+
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        net = t.net
+        return {"net_thigh_n": net["thigh"], "net_calf_n": net["calf"], "net_web_n": net["web"],
+                "net_n": sum(net.values())}
 
     library_options = {"link_x_m": "x_m", "link_quadrature": "quadrature"}
 
