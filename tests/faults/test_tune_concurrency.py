@@ -20,7 +20,9 @@ from proctree import PROJECT, Verb, project_env, small_parquet, tiny_learn_confi
 def _journal(path):
     from workbench.learn.tune import TuneCfg, resolve_storage
 
-    return resolve_storage(str(path), "s", TuneCfg(heartbeat_interval_s=1, grace_period_s=30))[0]
+    # a 10 s interval: the worker below is killed between beats, not while it holds the journal's lock
+    # (a lock left by a killed writer blocks the journal for Optuna's 30 s lock grace period)
+    return resolve_storage(str(path), "s", TuneCfg(heartbeat_interval_s=10, grace_period_s=30))[0]
 
 
 def test_a_trial_whose_worker_was_killed_is_failed_at_once_and_queued_again(tmp_path):
@@ -33,13 +35,15 @@ def test_a_trial_whose_worker_was_killed_is_failed_at_once_and_queued_again(tmp_
         import time, optuna
         from workbench.learn.tune import TuneCfg, resolve_storage
         from optuna.storages._heartbeat import get_heartbeat_thread
-        st = resolve_storage({str(journal)!r}, "s", TuneCfg(heartbeat_interval_s=1, grace_period_s=30))[0]
+        st = resolve_storage({str(journal)!r}, "s", TuneCfg(heartbeat_interval_s=10, grace_period_s=30))[0]
         study = optuna.load_study(study_name="s", storage=st)
         t = study.ask({{"x": optuna.distributions.FloatDistribution(0, 1)}})
         with get_heartbeat_thread(t._trial_id, st):
+            while "wb:heartbeat" not in st.get_trial(t._trial_id).system_attrs:
+                time.sleep(0.05)
             print("running", flush=True)
             time.sleep(600)
-    """)
+    """)  # it prints once its first heartbeat is written; the next is 10 s later
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(PROJECT)})
     try:
