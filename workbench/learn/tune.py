@@ -280,9 +280,8 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
     import mlflow
     import optuna
 
-    from workbench.learn.tracking import run_tags, setup
-
     from workbench import procs
+    from workbench.learn.tracking import run_tags, setup
 
     procs.install()  # SIGTERM/SIGHUP clean up as Ctrl-C does: workers stopped, trials failed, runs ended
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -530,10 +529,9 @@ def write_outputs(summary: dict, out_dir: str | Path) -> Path:
 
 
 def _worker_main(argv: list[str]) -> int:
+    from workbench import procs
     from workbench.console import info
     from workbench.errors import WorkbenchError
-
-    from workbench import procs
 
     if len(argv) != 2 or argv[0] != "--worker":
         print("usage: python -m workbench.learn.tune --worker SPEC.json|-  (- reads the spec from stdin)",

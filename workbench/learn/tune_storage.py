@@ -55,6 +55,7 @@ class TrialSeededTPE(TPESampler):
         self.sampler_seed = int(sampler_seed)
 
     def before_trial(self, study, trial) -> None:
+        """Reseed from ``(sampler_seed, trial.number)``, then TPE's own preparation."""
         seed = trial_seed(self.sampler_seed, trial.number)
         self._rng.rng.seed(seed)
         self._random_sampler._rng.rng.seed(seed)
@@ -128,6 +129,7 @@ class HeartbeatJournalStorage(_LocalOwner, JournalStorage, BaseHeartbeat):
         self._owned = set()
 
     def record_heartbeat(self, trial_id: int) -> None:
+        """A heartbeat: this process and the time, as a trial system attribute."""
         number = self.get_trial_number_from_id(trial_id)
         self.set_trial_system_attr(trial_id, HEARTBEAT_KEY, {**_me(), "trial": number, "t": time.time()})
 
@@ -149,12 +151,15 @@ class HeartbeatJournalStorage(_LocalOwner, JournalStorage, BaseHeartbeat):
         return stale
 
     def get_heartbeat_interval(self) -> int | None:
+        """Seconds between heartbeats."""
         return self.heartbeat_interval
 
     def get_heartbeat_stale_trial_callback(self):
+        """What runs for each stale trial failed (the retry)."""
         return self._stale_cb
 
     def get_failed_trial_callback(self):
+        """Older name of :meth:`get_heartbeat_stale_trial_callback`."""
         return self._stale_cb
 
 
@@ -166,6 +171,7 @@ class HeartbeatRDBStorage(_LocalOwner, RDBStorage):
         self._owned = set()
 
     def record_heartbeat(self, trial_id: int) -> None:
+        """Optuna's heartbeat, and this process as the trial's owner (once)."""
         super().record_heartbeat(trial_id)
         self._record_owner(trial_id)
 
