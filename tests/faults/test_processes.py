@@ -109,3 +109,39 @@ def test_killing_train_leaves_no_process(sig, tmp_path, verb_runner):
     train.kill(sig)
     assert train.survivors(20) == []
     assert not (tmp_path / "model").exists()
+
+
+def test_the_guard_ends_a_tree_even_where_a_grandchild_left_its_group_when_the_command_is_sigkilled(tmp_path):
+    """procs.popen(guarded(cmd)): the parent's SIGKILL reaches a daemonised grandchild too."""
+    import subprocess
+    import sys
+    import textwrap
+
+    from proctree import PROJECT, Verb
+
+    tree = textwrap.dedent("""
+        import subprocess, sys, time
+        # a child in a session of its own (as daemons do): out of reach of the group's signals
+        subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"], start_new_session=True)
+        subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"])
+        time.sleep(600)
+    """)
+    parent = textwrap.dedent(f"""
+        import sys, time
+        from workbench import procs
+        procs.popen(procs.guarded([sys.executable, "-c", {tree!r}]))
+        print("started", flush=True)
+        time.sleep(600)
+    """)
+    log = tmp_path / "p.log"
+    with open(log, "wb") as fh:
+        proc = subprocess.Popen([sys.executable, "-c", parent], stdout=fh, stderr=subprocess.STDOUT,
+                                cwd=PROJECT, start_new_session=True)
+    v = Verb.__new__(Verb)  # reuse the watcher on a plain process
+    v.proc, v.log_path, v.seen, v._log = proc, log, {}, open(log, "rb")
+    try:
+        v.wait_for(lambda: len(v.watch()) >= 4, 60, "guard, command and its two children")
+        assert v.kill(signal.SIGKILL) is not None
+        assert v.survivors(20) == []
+    finally:
+        v.cleanup()
