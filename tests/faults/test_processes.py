@@ -13,6 +13,8 @@ import urllib.request
 import pytest
 from proctree import Verb, free_port, port_open, project_env, small_parquet, tiny_learn_config
 
+pytestmark = pytest.mark.faults
+
 SIGNALS = [signal.SIGINT, signal.SIGTERM, signal.SIGKILL]
 IDS = ["SIGINT", "SIGTERM", "SIGKILL"]
 

@@ -14,6 +14,8 @@ import time
 import pytest
 from proctree import PROJECT, Verb, project_env, small_parquet, tiny_learn_config
 
+pytestmark = pytest.mark.faults
+
 # ----------------------------------------------------------------------------- fast: the storage itself
 
 
