@@ -44,7 +44,8 @@ def register(sub) -> None:
     src.add_argument("--processed", metavar="FILE", help="processed Parquet file of a tunnel campaign")
     src.add_argument("--trials", metavar="SCORES_DIR",
                      help="trajectory level: a score-trials output folder (scores.csv + trajectories/); the trials "
-                     "are swum again in the simulator with --gaits and --model")
+                     "are swum again in the simulator with --gaits and --model (or each of --models); "
+                     "docs/diagnose-trajectory.md")
     p.add_argument("--gaits", default="datasets/gaits", metavar="DIR",
                    help="with --trials: folder of <task>-<model>.json gait files (default: datasets/gaits)")
     p.add_argument("--robot", default="pipelines/robot.yaml", metavar="YAML",
