@@ -1,6 +1,7 @@
 """Which workbench source files a DVC stage's command can run, derived from the imports (issue 15.1).
 
     python tests/stage_deps.py            # per stage: the files its deps in dvc.yaml miss
+    python tests/stage_deps.py --fix      # rewrite the stages' workbench/ deps in dvc.yaml from the imports
 
 A stage runs ``workbench <verb> ...``: the entry point ``workbench/cli.py`` imports every verb module
 to build its parser, but only the stage's own verb does work. So a stage's code is the closure of
@@ -8,8 +9,10 @@ to build its parser, but only the stage's own verb does work. So a stage's code 
 - ``workbench/cli.py`` and the stage's verb module ``workbench/commands/<verb>.py``, following
   every import in them, module level and inside functions (a superset: a function-level import
   may not run, but it can), and
-- every module named by a whole string in a reached module (``"workbench.learn.plugin"``):
-  plug-in tables import such modules by name. A ``"module:function"`` loader target is not
+- every module named by a whole string in a sequence literal or a call of a reached module
+  (``_PLUGIN_MODULES = ("workbench.learn.plugin", ...)``, ``import_module("workbench.x")``):
+  plug-in tables import such modules by name; a package named so brings in all its modules
+  (a package scan). Dict keys naming modules are lookups, not imports. A ``"module:function"`` loader target is not
   followed: it runs only when that model is asked for, and the stage asking for it names the
   package in its deps;
 
@@ -73,9 +76,21 @@ def direct_imports(path: Path) -> frozenset[Path]:
                 mod = node.module or ""
             names.add(mod)
             names.update(f"{mod}.{a.name}" for a in node.names)
-        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and MODULE_STRING.fullmatch(node.value):
-            names.add(node.value)  # a plug-in table naming a module it imports
+        elif isinstance(node, ast.Assign) and isinstance(node.value, ast.Constant) \
+                and isinstance(node.value.value, str) and MODULE_STRING.fullmatch(node.value.value):
+            names.add(node.value.value)  # IN_TREE_PACKAGE = "workbench.diagnose.effects" (scanned later)
+        elif isinstance(node, (ast.Tuple, ast.List, ast.Set, ast.Call)):
+            # a plug-in table (a sequence of module names) or import_module("workbench.x"); dict keys
+            # naming modules (a lookup table, atomic.py's verbs) are not imports
+            items = node.elts if not isinstance(node, ast.Call) else node.args
+            names.update(c.value for c in items if isinstance(c, ast.Constant) and isinstance(c.value, str)
+                         and MODULE_STRING.fullmatch(c.value))
     files = set()
+    for n in list(names):
+        f = module_file(n)
+        if f is not None and f.name == "__init__.py" and n.replace(".", "/") == str(f.parent.relative_to(ROOT)):
+            if n not in imported_names(tree):
+                files.update(f.parent.rglob("*.py"))  # named by a string: scanned at run time
     for n in names:
         f = module_file(n)
         if f is not None:
@@ -86,6 +101,17 @@ def direct_imports(path: Path) -> frozenset[Path]:
                 files.add(parent / "__init__.py")
                 parent = parent.parent
     return frozenset(files)
+
+
+def imported_names(tree: ast.AST) -> set[str]:
+    """Module names of import statements (not strings)."""
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            out.add(node.module)
+    return out
 
 
 def closure(starts: list[Path], skip: set[Path]) -> set[Path]:
@@ -150,7 +176,60 @@ def missing_deps() -> dict[str, list[str]]:
     return out
 
 
+def minimal_cover(files: set[Path], share: float = 0.6) -> list[str]:
+    """Few paths that cover ``files``: a package folder when at least ``share`` of its modules are
+    in (a superset: DVC then also reruns on its other modules), else the files one by one."""
+    out: list[str] = []
+    pending = set(files)
+
+    def visit(folder: Path) -> None:
+        mods = set(folder.rglob("*.py"))
+        if mods and folder != PKG and len(mods & files) >= share * len(mods):
+            out.append(str(folder.relative_to(ROOT)))
+            pending.difference_update(mods)
+            return
+        for sub in sorted(p for p in folder.iterdir() if p.is_dir() and (p / "__init__.py").is_file()):
+            visit(sub)
+
+    visit(PKG)
+    out += sorted(str(f.relative_to(ROOT)) for f in pending)
+    return sorted(out)
+
+
+def fix_dvc_yaml(path: Path = ROOT / "dvc.yaml") -> int:
+    """Rewrite each stage's ``workbench/`` deps in dvc.yaml from the imports (other lines untouched)."""
+    stages = dvc_stages(path)
+    lines = path.read_text().splitlines()
+    out, stage, i, changed = [], None, 0, 0
+    while i < len(lines):
+        line = lines[i]
+        m = re.match(r"^  ([A-Za-z0-9_]+):\s*$", line)
+        if m:
+            stage = m.group(1)
+        d = re.match(r"^(\s+)deps:\s*$", line)
+        if d and stage in stages:
+            out.append(line)
+            i += 1
+            block = []
+            while i < len(lines) and re.match(r"^" + d.group(1) + r"  - ", lines[i]):
+                block.append(lines[i])
+                i += 1
+            keep = [b for b in block if not b.strip().startswith("- workbench/")]
+            cmd = stages[stage]["cmd"]
+            code = stage_code(cmd if isinstance(cmd, str) else " ".join(cmd))
+            new = keep + [f"{d.group(1)}  - {p}" for p in minimal_cover(code)] if code else block
+            changed += new != block
+            out += new
+            continue
+        out.append(line)
+        i += 1
+    path.write_text("\n".join(out) + "\n")
+    return changed
+
+
 if __name__ == "__main__":
+    if "--fix" in sys.argv:
+        print(f"dvc.yaml: workbench deps rewritten in {fix_dvc_yaml()} stage(s)")
     miss = missing_deps()
     for stage, files in miss.items():
         print(f"{stage}:")

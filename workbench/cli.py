@@ -85,6 +85,10 @@ def _line_buffered() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; bad input ends with ``error: <one line>`` on stderr and exit status 2."""
     _line_buffered()
+    if argv is None:  # the real command (tests call main(args) in their own process): SIGTERM and SIGHUP clean
+        from workbench import procs  # up like Ctrl-C, and children started through procs die with the command
+
+        procs.install()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -22,7 +22,7 @@ def _train(data, root, tracking_uri, run_name, extra=()):
     (root / "pipelines").mkdir(exist_ok=True)
     shutil.copy(PROJECT / "pipelines" / "learn.yaml", root / "pipelines" / "learn.yaml")
     cmd = [sys.executable, "-m", "workbench.cli", "train", "--data", str(data), "--tracking-uri", tracking_uri,
-           "--run-name", run_name, "--out", str(root / "model"), "--quiet",
+           "--run-name", run_name, "--out", str(root / "model"), "--quiet", "--register",
            "--set", "trainer.max_epochs=1", "--set", "data.train_windows_per_epoch=1024",
            "--set", "model.hidden_size=16", "--set", "model.num_layers=1", *extra]
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=root, timeout=600)

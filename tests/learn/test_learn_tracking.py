@@ -25,7 +25,7 @@ def trained(project, parquet):
     interp, _ = parquet
     out = project / "datasets" / "models" / "fed-lstm"
     args = ["train", "--config", str(CONFIG), "--data", str(interp), "--out", str(out), "--dvc-stage", "train",
-            "--quiet"]
+            "--quiet", "--register"]
     for s in SHRINK:
         args += ["--set", s]
     assert main(args) == 0
@@ -130,3 +130,21 @@ def test_bad_input_is_one_line(project, parquet, capsys, tmp_path):
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "split file not found" in err and err.count("\n") == 1
     assert not (tmp_path / "m.json").exists()
+
+
+def test_an_ad_hoc_train_run_registers_nothing_unless_asked(trained, project, parquet):
+    """The README tour trains a quick model: the champion alias must stay where the pipeline put it."""
+    import mlflow
+
+    interp, _ = parquet
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{project / 'mlflow.db'}")
+    before = client.get_model_version_by_alias("fed-lstm", "champion").version
+    n_before = len(client.search_model_versions("name='fed-lstm'"))
+    args = ["train", "--config", str(CONFIG), "--data", str(interp), "--out", str(project / "scratch" / "quick"),
+            "--quiet"]
+    for s in SHRINK:
+        args += ["--set", s]
+    assert main(args) == 0
+    assert client.get_model_version_by_alias("fed-lstm", "champion").version == before
+    assert len(client.search_model_versions("name='fed-lstm'")) == n_before
+    assert (project / "scratch" / "quick" / "weights.pt").is_file()

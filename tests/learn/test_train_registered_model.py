@@ -38,7 +38,7 @@ def test_sixteen_tick_model_registers_under_its_own_name(project, parquet, tmp_p
 
     out = project / "datasets" / "models" / "fed-lstm-16"
     args = ["train", "--config", str(CONFIG), "--data", str(interp), "--out", str(out), "--quiet",
-            "--set", "data.seq_len=16", "--registered-model", "fed-lstm-16"]
+            "--set", "data.seq_len=16", "--registered-model", "fed-lstm-16", "--register"]
     for s in SHRINK:
         args += ["--set", s]
     assert main(args) == 0

@@ -43,7 +43,8 @@ def register(sub) -> None:
                         "models:/fed-lstm@tuned -> fed-lstm-tuned, a folder -> its name)")
     p.add_argument("--params", default="pipelines/gait.yaml", metavar="YAML",
                    help="parameter file, section 'optimize' (default: pipelines/gait.yaml)")
-    p.add_argument("--out", default="datasets/gaits", metavar="DIR", help="output folder (default: datasets/gaits)")
+    p.add_argument("--out", default="scratch/gaits", metavar="DIR",
+                   help="output folder (default: scratch/gaits; the pipeline's stages write datasets/gaits)")
     p.add_argument("--pop", type=int, default=None, metavar="N", help="population size (overrides the file)")
     p.add_argument("--gens", type=int, default=None, metavar="N", help="generations (overrides the file)")
     p.add_argument("--seed", type=int, default=None, metavar="N", help="random seed (overrides the file)")

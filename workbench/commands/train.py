@@ -41,12 +41,16 @@ def register(sub) -> None:
                  examples=EXAMPLES)
     add_common_options(p)
     p.add_argument("--out", metavar="DIR", help="model folder to write (default: the file's model_dir, "
-                                                "datasets/models/fed-lstm)")
+                                                "scratch/models/fed-lstm: never the pipeline's datasets/models)")
     p.add_argument("--registered-model", metavar="NAME",
                    help="registered model to add the new version to (default: the file's tracking.registered_model, "
                         "fed-lstm); e.g. fed-lstm-16 for the paper's 16-tick windows, so its champion is its own")
     p.add_argument("--alias", help="registry alias to point at the new version (default: the file's, champion)")
-    p.add_argument("--no-register", action="store_true", help="log the model but do not register it")
+    reg = p.add_mutually_exclusive_group()
+    reg.add_argument("--register", action="store_true",
+                     help="register the model and point the alias at it (the pipeline's train stages do; an ad-hoc "
+                          "run does not, unless asked: it never moves fed-lstm@champion by accident)")
+    reg.add_argument("--no-register", action="store_true", help="log the model but do not register it (the default)")
     p.add_argument("--run-name", help="MLflow run name")
     p.add_argument("--quiet", action="store_true", help="no per-epoch lines")
     p.set_defaults(func=run)
@@ -67,6 +71,8 @@ def run(args) -> int:
         over["tracking.registered_model"] = args.registered_model
     if args.no_register:
         over["tracking.register"] = False
+    if args.register:
+        over["tracking.register"] = True
     if args.run_name:
         over["tracking.run_name"] = args.run_name
     cfg = cfg.with_overrides(over) if over else cfg
