@@ -34,15 +34,17 @@ pytestmark = pytest.mark.slow
 # Every stage the demo dvc.yaml defines for one tunnel and one towing campaign.
 ALL_STAGES = {
     "virtual_lab_tunnel", "virtual_lab_towing", "ingest_tunnel@demo-tunnel", "ingest_towing@demo-towing",
-    "interpolate@demo-tunnel", "fit_drag@demo-towing", "train", "tune", "evaluate",
+    "interpolate@demo-tunnel", "fit_drag@demo-towing", "train", "train_16", "tune", "evaluate",
     "optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight", "optimize_lstm@turn",
+    "optimize_lstm16@straight", "optimize_lstm16@turn",
     "virtual_pool", "score_trials", "sensitivity", "diagnose", "report",
 }
 # What a new tunnel campaign must rerun: its own ingest and interpolation, the learned models and
 # their evaluation, and what consumes the retrained model (LSTM gaits -> pool -> scores -> report).
 DEPENDENT = {
-    f"ingest_tunnel@{NEW}", f"interpolate@{NEW}", "train", "tune", "evaluate",
-    "optimize_lstm@straight", "optimize_lstm@turn", "virtual_pool", "score_trials", "report",
+    f"ingest_tunnel@{NEW}", f"interpolate@{NEW}", "train", "train_16", "tune", "evaluate",
+    "optimize_lstm@straight", "optimize_lstm@turn", "optimize_lstm16@straight", "optimize_lstm16@turn",
+    "virtual_pool", "score_trials", "report",
 }
 
 SMALL_GRID = {"theta_h_min_deg": [10.0, -50.0], "theta_k_max_deg": [-20.0, -60.0],
@@ -217,7 +219,8 @@ def test_metrics_plots_and_experiments(project):
     out = _run(["dvc", "exp", "run", "-n", "more-generations", "-S", "pipelines/gait.yaml:optimize.nsga2.n_gen=3"],
                project, timeout=1800)
     assert _ran(out) == {"optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight",
-                         "optimize_lstm@turn", "virtual_pool", "score_trials", "sensitivity", "report"}, out[-3000:]
+                         "optimize_lstm@turn", "optimize_lstm16@straight", "optimize_lstm16@turn",
+                         "virtual_pool", "score_trials", "sensitivity", "report"}, out[-3000:]
     table = _run(["dvc", "exp", "show", "--csv"], project, stdout_only=True)
     header, *rows = list(csv.reader(io.StringIO(table.strip())))  # quoted values hold commas (lists)
     col = header.index("optimize.nsga2.n_gen")
