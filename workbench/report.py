@@ -48,6 +48,8 @@ FIGURE_CAPTIONS = {
                        "for the ranking ({what})",
     "boxplots.png": "Pool-trial scores per model and task (unfinished trials drawn apart, not as 60 s times)",
     "learning_curve.png": "Training and validation loss per epoch ({what})",
+    "trajectory_errors.png": "RMS position and heading error of each leg model's swims against the tracked pool "
+                             "trials, each trial in its own frame",
 }
 
 
@@ -457,6 +459,27 @@ def diagnosis_section(datasets: Path) -> Section:
     return sec
 
 
+def trajectory_section(datasets: Path) -> Section:
+    """Trajectory error of the leg models against the tracked pool trials (diagnose --trials)."""
+    from workbench.diagnose.trajectory import errors_rows
+
+    sec = Section("Trajectory error: EF, augmented EF, FED-LSTM side by side")
+    for tj in sorted((datasets / "diagnosis").glob("*/trajectory_errors.json")):
+        doc = _load_json(tj) or {}
+        header, rows = errors_rows(doc)
+        sec.tables.append((f"{tj.parent.name}: the pool trials swum again in the simulator with each leg model, "
+                           "against the tracks scored from the videos (converged swims only; tracks cut at the "
+                           f"wall: {', '.join(doc.get('cut_at_wall') or []) or 'none'})", header, rows))
+        for model, d in (doc.get("models") or {}).items():
+            for e in (d.get("effects") or []) if isinstance(d, dict) else []:
+                sec.paragraphs.append(f"**{model}: {e.get('name', '?')}** "
+                                      + ", ".join(f"{k}={_fmt(v)}" for k, v in (e.get("params") or {}).items()))
+        sec.figures += [p for p in [tj.parent / "trajectory_errors.png"] if p.is_file()]
+    if not sec.tables:
+        sec.paragraphs.append("No trajectory diagnosis yet (workbench diagnose --trials; docs/diagnose-trajectory.md).")
+    return sec
+
+
 def mlflow_section(tracking_uri: str | None, ui_url: str) -> Section:
     """Links to the latest MLflow run of each pipeline step (open with `workbench ui`)."""
     sec = Section("MLflow runs")
@@ -486,7 +509,7 @@ def collect(datasets: Path, tracking_uri: str | None = None, ui_url: str = "http
     """All report sections, in the order the data flows through the workbench."""
     secs = [campaigns_section(datasets), drag_section(datasets), leg_models_section(datasets),
             gaits_section(datasets), sensitivity_section(datasets), trials_section(datasets), seq_len_section(datasets),
-            diagnosis_section(datasets)]
+            diagnosis_section(datasets), trajectory_section(datasets)]
     if with_mlflow:
         secs.append(mlflow_section(tracking_uri, ui_url))
     return secs
@@ -543,6 +566,12 @@ def headline(datasets: Path) -> dict:
         diag = out.setdefault("diagnosis", {})
         diag[f"{prefix}effects"] = len(d.get("effects", []))
         diag.update({f"{prefix}cut_{_SHORT[ch]}": round(cut[ch], 4) for ch in _KEY_CHANNELS if ch in cut})
+    for tj in sorted((datasets / "diagnosis").glob("*/trajectory_errors.json")):
+        models = (_load_json(tj) or {}).get("models") or {}
+        rms = {k.replace(" ", "_"): round(v["rms_position_m"], 3) for k, v in models.items()
+               if isinstance(v, dict) and isinstance(v.get("rms_position_m"), (int, float))}
+        if rms:
+            out["trajectory_rms_m"] = rms
     best = (_load_json(datasets / "models" / "tune" / "best.json") or {}).get("best") or {}
     if isinstance(best.get("value"), (int, float)):
         out["tune_best_val_loss"] = round(best["value"], 5)

@@ -37,14 +37,14 @@ ALL_STAGES = {
     "interpolate@demo-tunnel", "fit_drag@demo-towing", "train", "train_16", "tune", "evaluate",
     "optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight", "optimize_lstm@turn",
     "optimize_lstm16@straight", "optimize_lstm16@turn",
-    "virtual_pool", "score_trials", "sensitivity", "diagnose", "report",
+    "virtual_pool", "score_trials", "sensitivity", "diagnose", "diagnose_trajectory", "report",
 }
 # What a new tunnel campaign must rerun: its own ingest and interpolation, the learned models and
 # their evaluation, and what consumes the retrained model (LSTM gaits -> pool -> scores -> report).
 DEPENDENT = {
     f"ingest_tunnel@{NEW}", f"interpolate@{NEW}", "train", "train_16", "tune", "evaluate",
     "optimize_lstm@straight", "optimize_lstm@turn", "optimize_lstm16@straight", "optimize_lstm16@turn",
-    "virtual_pool", "score_trials", "report",
+    "virtual_pool", "score_trials", "diagnose_trajectory", "report",
 }
 
 SMALL_GRID = {"theta_h_min_deg": [10.0, -50.0], "theta_k_max_deg": [-20.0, -60.0],
@@ -220,7 +220,7 @@ def test_metrics_plots_and_experiments(project):
                project, timeout=1800)
     assert _ran(out) == {"optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight",
                          "optimize_lstm@turn", "optimize_lstm16@straight", "optimize_lstm16@turn",
-                         "virtual_pool", "score_trials", "sensitivity", "report"}, out[-3000:]
+                         "virtual_pool", "score_trials", "sensitivity", "diagnose_trajectory", "report"}, out[-3000:]
     table = _run(["dvc", "exp", "show", "--csv"], project, stdout_only=True)
     header, *rows = list(csv.reader(io.StringIO(table.strip())))  # quoted values hold commas (lists)
     col = header.index("optimize.nsga2.n_gen")

@@ -34,6 +34,7 @@ Two questions (docs/diagnose-trajectory.md):
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -98,6 +99,10 @@ class TrajectorySettings:
     #: a trial whose heading turns less than this carries no evidence on a current (the body frame
     #: cannot be told from the tank frame)
     min_turn_deg: float = 20.0
+    #: window nets (the FED-LSTM: a seq_len, no fast path of their own) swim through the optimiser's
+    #: per-gait cycle tables (gait/tabulate.py; S within 0.3-1.4 % of the direct rollout, docs/gaits.md)
+    #: instead of the model on every tick of every leg (about 50 s per 60 s swim on 2 cores)
+    tabulate_models: bool = True
 
 
 # ------------------------------------------------------------------------------------------- input
@@ -192,7 +197,9 @@ def read_tracks(scores_dir: str | Path, tank_m: tuple[float, float] | None = Non
 
 def gait_for(gaits_dir: str | Path, track: Track) -> tuple[dict, dict]:
     """The gait parameters (and fixed constants) a trial swam: ``<task>-<model>.json``, its solution rank."""
-    model = LABELS.get(track.model.lower(), track.model.lower())
+    label = track.model.lower()
+    m = re.fullmatch(r"fed-lstm-(\d+)", label)  # the pool's label of a window net's gaits: FED-LSTM-16 -> lstm16
+    model = f"lstm{m.group(1)}" if m else LABELS.get(label, label)
     path = Path(gaits_dir) / f"{track.task}-{model}.json"
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
@@ -231,7 +238,13 @@ def simulate_tracks(tracks: list[Track], gaits_dir, leg_model, robot, settings: 
         if warm is not None and all(warm[i] is not None and warm[i].flow_mps is not None
                                     and warm[i].flow_mps.shape[-1] == n_ticks for i, _ in todo):
             init = np.stack([warm[i].flow_mps for i, _ in todo])
-        traj = simulate(batch, leg_model, robot, duration_s=dur, dt_s=settings.dt_s, initial_flow=init, **kw)
+        model = leg_model
+        if settings.tabulate_models and not callable(getattr(leg_model, "flow_provider", None)) \
+                and getattr(leg_model, "seq_len", 0) > 1:
+            from workbench.gait.tabulate import TabulatedLegModel
+
+            model = TabulatedLegModel(leg_model, batch, sim_dt_s=settings.dt_s)
+        traj = simulate(batch, model, robot, duration_s=dur, dt_s=settings.dt_s, initial_flow=init, **kw)
         for j, (i, _) in enumerate(todo):
             out[i] = SimTrack(traj.t_s, np.stack([traj.x_m[j], traj.y_m[j]], axis=1), traj.yaw_rad[j],
                               np.stack([traj.vx_mps[j], traj.vy_mps[j]], axis=1), bool(traj.converged[j]),
