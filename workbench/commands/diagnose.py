@@ -178,12 +178,14 @@ def run(args) -> int:
     import time
     from pathlib import Path
 
-    from workbench.atomic import atomic_dir, write_json
+    from workbench.atomic import atomic_dir, check_replaceable, write_json
     from workbench.console import info
     from workbench.diagnose.chain import Lowpass
     from workbench.diagnose.loop import DiagnoseSettings, diagnose
     from workbench.errors import ContractError
     from workbench.hydro.legmodel import load_leg_model
+
+    check_replaceable(args.out, "diagnose")  # a wrong --out is refused before the work, not after
 
     t0 = time.perf_counter()
     if args.trials:

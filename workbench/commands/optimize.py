@@ -108,6 +108,9 @@ def run(args) -> int:
     ts = cfg.task(args.task)
     robot = load_robot(args.robot or cfg.robot, drag_json=args.drag or cfg.drag_json)
     label = _label(args.label, args.model)
+    from workbench.atomic import check_replaceable
+
+    check_replaceable(Path(args.out) / f"{args.task}-{label}", "optimize")  # refused before the work, not after
     model = load_leg_model(args.model)
     if "torch" in sys.modules:  # a learned leg model
         from workbench.threads import apply_torch_threads

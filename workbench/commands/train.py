@@ -79,6 +79,10 @@ def run(args) -> int:
     info(f"train: {cfg.model.variant} {cfg.model.hidden_size}x{cfg.model.num_layers}, seq_len {cfg.data.seq_len}, "
          f"data {', '.join(cfg.data.paths)}")
     from workbench.learn.train import train
+    if cfg.model_dir:
+        from workbench.atomic import check_replaceable
+
+        check_replaceable(cfg.model_dir, "train")  # a wrong --out is refused before the training, not after
 
     metrics, objects = train(cfg, report=None if args.quiet else info)
     s = metrics["summary"]

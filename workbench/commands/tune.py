@@ -61,6 +61,10 @@ def run(args) -> int:
     tune = dataclasses.replace(tune, **over)
     if tune.n_trials < 1 or tune.workers < 1:
         raise ContractError("--n-trials and --workers must be at least 1")
+    if args.out:
+        from workbench.atomic import check_replaceable
+
+        check_replaceable(args.out, "tune")  # a wrong --out is refused before the study, not after
     summary = run_study(cfg, tune, out_dir=args.out, fresh=args.fresh, report=info)
     c, b = summary["counts"], summary["best"]
     info(f"study {summary['study']!r}: {summary['n_trials_this_run']} trial(s) this run ({c['COMPLETE']} complete, "

@@ -241,6 +241,12 @@ def prepare(frame, settings: DataSettings | None = None, source: str = "processe
     held = heldout_mask(runs, settings.heldout_fraction, settings.split_decimals)
     train_idx = [i for i in range(len(runs)) if not held[i]]
     held_idx = [i for i in range(len(runs)) if held[i]]
+    if not train_idx or not held_idx:
+        n_sets = len({tuple(sorted(r.params.items())) for r in runs})
+        raise DataError(f"{len(runs)} run(s) of {n_sets} motion-parameter set(s) leave "
+                        f"{'no training' if not train_idx else 'no held-out'} runs (whole sets are held out, "
+                        f"fraction {settings.heldout_fraction:g})", path=source,
+                        hint="diagnose a campaign with more parameter sets, or raise data.max_runs")
     train_sets = [make_runset([runs[i] for i in c], c, dt, settings, False)
                   for c in _chunks(train_idx, runs, settings.chunk_runs)]
     held_sets = [make_runset([runs[i] for i in c], c, dt, settings, True)
