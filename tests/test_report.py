@@ -199,3 +199,13 @@ def test_unfinished_trials_are_drawn_apart_in_the_pool_boxplots(tmp_path):
                            "completed": [True, False, False, False]})
     out = plot_boxplots(scores, tmp_path / "box.png", baseline="EF")
     assert out.stat().st_size > 10_000
+
+
+def test_improvement_table_survives_missing_improvements():
+    # score-trials leaves the improvement empty where the baseline is zero or missing
+    summary = {"comparison": {"baseline": "EF", "models": {"FED-LSTM": {"straight": {
+        "best": {"time_s": {"EF": 0.0, "FED-LSTM": 12.0, "improvement": None}},
+        "mean": {"mae_x_m": {"EF": 0.4, "FED-LSTM": 0.2, "improvement": 0.5}}}}}}}
+    caption, header, rows = report._improvement_table(summary)
+    assert ["straight", "FED-LSTM", "best", "T (s)", "0.000", "12.000", "-"] in rows
+    assert rows[-1][-1] == "+50.0 %"

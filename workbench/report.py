@@ -243,8 +243,10 @@ def _improvement_table(summary: dict) -> tuple[str, list[str], list[list[str]]] 
                         base, mine = v.get(summary.get("comparison", {}).get("baseline", "EF")), v.get(model)
                         unfinished = (score == "time_s" and isinstance(base, (int, float))
                                       and isinstance(mine, (int, float)) and min(base, mine) >= 60.0 - 1e-9)
+                        imp = v.get("improvement")
                         rows.append([task, model, agg, SCORE_NAMES.get(score, score), _fmt(base), _fmt(mine),
-                                     "neither finished" if unfinished else f"{100 * float(v['improvement']):+.1f} %"])
+                                     "neither finished" if unfinished else
+                                     f"{100 * float(imp):+.1f} %" if isinstance(imp, (int, float)) else "-"])
     if not rows:
         return None
     return ("Improvement over EF, (EF - model) / EF: positive is better (unfinished trials count as the 60 s cap)",
