@@ -1,14 +1,30 @@
 """Live acquisition: the load cell's serial stream, byte for byte, into a contract ``.bin`` capture.
 
-Bytes are appended to the file as they arrive and flushed to disk every ``sync_every_s``, so a
-crash or a pulled plug loses at most that much; Ctrl-C (SIGINT) and SIGTERM only set a stop flag,
-so the chunk in hand is always written and what is still in the port's buffer is drained before
-the file is closed. The capture is raw on purpose (it is the contract's ``.bin``: what the logger
-read): frames are decoded alongside only to show progress (frames, rate, dropped).
+Bytes are written to the file as they arrive (unbuffered) and synced to disk every
+``sync_every_s``, so a crash of the machine loses at most that much; Ctrl-C (SIGINT) and SIGTERM
+only set a stop flag, so the chunk in hand is always written and what is still in the port's
+buffer is drained before the file is closed. The capture is raw on purpose (it is the contract's
+``.bin``: what the logger read): frames are decoded alongside only to show progress (frames,
+rate, dropped).
+
+The rig's faults end a recording with :class:`AcquisitionFault` (one line, exit status 2 from the
+CLI), after the file has been synced and closed:
+
+- the serial device vanishes (cable pulled: the read fails or the device node is gone),
+- the stream stalls (no byte for ``stall_s`` seconds),
+- the disk is full (or the file size limit is reached) while writing.
+
+In each case every byte received and stored is kept, so every complete frame received before the
+fault is in the file; a trailing partial frame the device sent before vanishing or stalling is
+kept too (the contract allows partial frames: the reader counts those bytes as dropped), while a
+frame fragment that a full disk cut in two (an artefact of the failed write, not of the wire) is
+trimmed, so the capture ends at the last complete frame it stored. A fault before any byte was
+received leaves no file behind.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
 import threading
@@ -37,6 +53,19 @@ class AcquireStats:
         """The live progress line."""
         return (f"{self.frames:,} frames  {self.rate_hz:7.1f} Hz  dropped {self.dropped_frames} frames / "
                 f"{self.dropped_bytes} bytes  {self.bytes / 1e6:.2f} MB  {self.elapsed_s:6.1f} s")
+
+
+class AcquisitionFault(DataError):
+    """A recording ended by a fault of the rig (device gone, stream stalled, disk full).
+
+    The capture was closed validly first; ``stats`` holds what was kept (``stats.stopped_by`` is
+    ``"vanished"``, ``"stalled"`` or ``"disk"``), ``path`` the capture (None when nothing was kept).
+    """
+
+    def __init__(self, fault: str, stats: AcquireStats, capture: Path | None, hint: str | None = None):
+        self.stats = stats
+        self.capture = capture
+        super().__init__(fault, hint=hint)
 
 
 def open_port(port: str, baudrate: int, timeout_s: float = 0.1):
@@ -75,66 +104,145 @@ class _StopOnSignal:
 
 def record(port, out: str | Path, *, baudrate: int = 921600, duration_s: float | None = None,
            stop: threading.Event | None = None, on_progress: Callable[[AcquireStats], None] | None = None,
-           progress_every_s: float = 0.5, sync_every_s: float = 0.5, rate_hz: float | None = None) -> AcquireStats:
+           progress_every_s: float = 0.5, sync_every_s: float = 0.5, rate_hz: float | None = None,
+           stall_s: float | None = 5.0) -> AcquireStats:
     """Record ``port`` (a name/URL, or an open pyserial object) into ``out`` until stopped.
 
-    Stops after ``duration_s``, when ``stop`` is set, or on SIGINT/SIGTERM. Refuses to overwrite an
-    existing capture (raw data is never modified). ``rate_hz`` (the load cell's nominal frame rate)
-    sets the period for counting dropped frames; by default the median counter step is used.
+    Stops after ``duration_s``, when ``stop`` is set, or on SIGINT/SIGTERM, and returns the stats.
+    Refuses to overwrite an existing capture (raw data is never modified). ``rate_hz`` (the load
+    cell's nominal frame rate) sets the period for counting dropped frames; by default the median
+    counter step is used. Raises :class:`AcquisitionFault`, after closing the capture validly,
+    when the device vanishes, when no byte arrives for ``stall_s`` seconds (None or 0: wait for
+    ever) or when the disk is full.
     """
+    import serial
+
     out = Path(out)
     if out.exists():
         raise ContractError("capture file exists; raw data is never overwritten", path=out,
                             hint="choose a new file name")
     out.parent.mkdir(parents=True, exist_ok=True)
     ser = open_port(port, baudrate) if isinstance(port, str) else port
+    port_name = port if isinstance(port, str) else (getattr(ser, "port", None) or getattr(ser, "portstr", None)
+                                                     or "the serial port")
     stop = stop or threading.Event()
     decoder = FrameDecoder(period_us=1e6 / rate_hz if rate_hz else None)
     stats = AcquireStats()
     t0 = time.monotonic()
-    last_progress = last_sync = t0
+    last_progress = last_sync = last_byte = t0
     last_frames = 0
+    fault: tuple[str, BaseException | None] | None = None   # (kind, cause)
+    lost_bytes = 0
     try:
-        with open(out, "xb") as fh, _StopOnSignal(stop) as sig:
+        # unbuffered: every chunk is one write (the file's size is what was stored), synced below
+        with open(out, "xb", buffering=0) as fh, _StopOnSignal(stop) as sig:
             def take(chunk: bytes) -> None:
-                fh.write(chunk)
-                stats.bytes += len(chunk)
-                decoder.feed(chunk)
+                """Write the whole chunk (a short write continues); count and decode what was stored."""
+                nonlocal lost_bytes
+                view = memoryview(chunk)
+                done = 0
+                try:
+                    while done < len(view):
+                        done += fh.write(view[done:])
+                finally:
+                    if done:
+                        stats.bytes += done
+                        decoder.feed(view[:done])
+                    lost_bytes = len(view) - done
 
-            while True:
-                now = time.monotonic()
-                if duration_s is not None and now - t0 >= duration_s:
-                    stats.stopped_by = "duration"
-                    break
-                if stop.is_set():
-                    stats.stopped_by = sig.signal_name or "stop"
-                    break
-                chunk = ser.read(max(1, ser.in_waiting))
-                if chunk:
-                    take(chunk)
-                now = time.monotonic()
-                if now - last_sync >= sync_every_s:
-                    fh.flush()
+            def read_port(size: int | None) -> bytes:
+                return ser.read(max(1, ser.in_waiting) if size is None else size)
+
+            try:
+                while True:
+                    now = time.monotonic()
+                    if duration_s is not None and now - t0 >= duration_s:
+                        stats.stopped_by = "duration"
+                        break
+                    if stop.is_set():
+                        stats.stopped_by = sig.signal_name or "stop"
+                        break
+                    try:
+                        chunk = read_port(None)
+                    except (serial.SerialException, OSError) as exc:
+                        fault = ("vanished", exc)
+                        break
+                    now = time.monotonic()
+                    if chunk:
+                        take(chunk)
+                        last_byte = now
+                    elif stall_s and now - last_byte >= stall_s:
+                        gone = isinstance(port, str) and port.startswith("/dev/") and not os.path.exists(port)
+                        fault = ("vanished", None) if gone else ("stalled", None)
+                        break
+                    if now - last_sync >= sync_every_s:
+                        os.fsync(fh.fileno())
+                        last_sync = now
+                    if on_progress and now - last_progress >= progress_every_s:
+                        _update(stats, decoder, now - t0, (decoder.frames - last_frames) / (now - last_progress))
+                        last_frames, last_progress = decoder.frames, now
+                        on_progress(stats)
+                if fault is None:
+                    # drain what the port already holds: received bytes are never dropped
+                    while True:
+                        try:
+                            waiting = ser.in_waiting
+                            chunk = read_port(waiting) if waiting else b""
+                        except (serial.SerialException, OSError) as exc:
+                            fault = ("vanished", exc)
+                            break
+                        if not chunk:
+                            break
+                        take(chunk)
+                os.fsync(fh.fileno())
+            except OSError as exc:          # writing or syncing the capture failed: disk full, I/O error
+                fault = ("disk", exc)
+                if decoder.pending_bytes:   # a frame fragment cut by the failed write: end at the last frame
+                    try:
+                        os.ftruncate(fh.fileno(), stats.bytes - decoder.pending_bytes)
+                        stats.bytes -= decoder.pending_bytes
+                    except OSError:
+                        pass
+                try:
                     os.fsync(fh.fileno())
-                    last_sync = now
-                if on_progress and now - last_progress >= progress_every_s:
-                    _update(stats, decoder, now - t0, (decoder.frames - last_frames) / (now - last_progress))
-                    last_frames, last_progress = decoder.frames, now
-                    on_progress(stats)
-            # drain what the port already holds: received bytes are never dropped
-            while True:
-                waiting = ser.in_waiting
-                if not waiting:
-                    break
-                take(ser.read(waiting))
-            fh.flush()
-            os.fsync(fh.fileno())
+                except OSError:
+                    pass
     finally:
         if isinstance(port, str):
-            ser.close()
+            try:
+                ser.close()
+            except Exception:  # noqa: BLE001 - a vanished device may fail to close; the capture is what matters
+                pass
     elapsed = time.monotonic() - t0
     _update(stats, decoder, elapsed, decoder.frames / elapsed if elapsed > 0 else 0.0)
+    if fault is not None:
+        stats.stopped_by = fault[0]
+        raise _fault(fault[0], fault[1], stats, out, port_name, elapsed, stall_s, lost_bytes)
     return stats
+
+
+def _fault(kind: str, cause: BaseException | None, stats: AcquireStats, out: Path, port_name: str,
+           elapsed: float, stall_s: float | None, lost_bytes: int) -> AcquisitionFault:
+    """The one-line fault, after the capture was closed (an empty capture is removed: nothing to keep)."""
+    capture: Path | None = out
+    if stats.bytes == 0:
+        out.unlink(missing_ok=True)   # written by us just now, empty: leave the name free for the retry
+        capture = None
+    kept = (f"{stats.frames:,} frames kept in {out}" if capture else f"nothing received, {out} not kept")
+    if kind == "vanished":
+        why = f" ({' '.join(str(cause).split())})" if cause else " (device node gone)"
+        return AcquisitionFault(f"serial device {port_name} vanished after {elapsed:.1f} s: {kept}{why}", stats,
+                                capture, hint="reconnect it and record the rest into a new file")
+    if kind == "stalled":
+        return AcquisitionFault(f"serial stream {port_name} stalled (no byte for {stall_s:g} s) after "
+                                f"{elapsed:.1f} s: {kept}", stats, capture,
+                                hint="check the load cell's power and baud rate; --stall-s sets the limit")
+    code = getattr(cause, "errno", None)
+    what = {errno.ENOSPC: "disk full", errno.EDQUOT: "disk quota exceeded",
+            errno.EFBIG: "file size limit reached"}.get(code, f"write failed ({getattr(cause, 'strerror', cause)})")
+    lost = f"; {lost_bytes:,} bytes in hand not written" if lost_bytes else ""
+    return AcquisitionFault(f"{what} writing {out} after {elapsed:.1f} s: {kept}{lost}", stats, capture,
+                            hint="free space and record the rest into a new file on another disk")
 
 
 def _update(stats: AcquireStats, decoder: FrameDecoder, elapsed: float, rate: float) -> None:
