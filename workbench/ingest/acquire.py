@@ -230,7 +230,8 @@ def _fault(kind: str, cause: BaseException | None, stats: AcquireStats, out: Pat
         capture = None
     kept = (f"{stats.frames:,} frames kept in {out}" if capture else f"nothing received, {out} not kept")
     if kind == "vanished":
-        why = f" ({' '.join(str(cause).split())})" if cause else " (device node gone)"
+        text = getattr(cause, "strerror", None) or str(cause or "device node gone")
+        why = " (" + " ".join(text.split(" (")[0].split()) + ")"
         return AcquisitionFault(f"serial device {port_name} vanished after {elapsed:.1f} s: {kept}{why}", stats,
                                 capture, hint="reconnect it and record the rest into a new file")
     if kind == "stalled":
@@ -240,9 +241,11 @@ def _fault(kind: str, cause: BaseException | None, stats: AcquireStats, out: Pat
     code = getattr(cause, "errno", None)
     what = {errno.ENOSPC: "disk full", errno.EDQUOT: "disk quota exceeded",
             errno.EFBIG: "file size limit reached"}.get(code, f"write failed ({getattr(cause, 'strerror', cause)})")
-    lost = f"; {lost_bytes:,} bytes in hand not written" if lost_bytes else ""
-    return AcquisitionFault(f"{what} writing {out} after {elapsed:.1f} s: {kept}{lost}", stats, capture,
-                            hint="free space and record the rest into a new file on another disk")
+    kept = f"{stats.frames:,} frames kept" if capture else "nothing kept"
+    lost = f"; {lost_bytes:,} received bytes could not be written" if lost_bytes else ""
+    hint = ("raise the file size limit (ulimit -f) and record the rest into a new file" if code == errno.EFBIG
+            else "free space, or record the rest into a new file on another disk")
+    return AcquisitionFault(f"{what} writing {out} after {elapsed:.1f} s: {kept}{lost}", stats, capture, hint=hint)
 
 
 def _update(stats: AcquireStats, decoder: FrameDecoder, elapsed: float, rate: float) -> None:
