@@ -201,3 +201,27 @@ def test_full_disk_message_names_enospc(tmp_path):
                  tmp_path / "c.bin", "/dev/ttyUSB0", 3.04, 5.0, 100)
     assert str(exc).startswith(f"disk full writing {tmp_path / 'c.bin'} after 3.0 s: 2 frames kept")
     assert "100 received bytes could not be written" in str(exc) and "\n" not in str(exc)
+
+
+def test_network_port_whose_peer_vanishes(tmp_path):
+    """A ``socket://`` load cell (serial-to-Ethernet adapter) that drops the connection mid-stream."""
+    import socket
+
+    sent = capture(n=500, seed=4)
+    server = socket.create_server(("127.0.0.1", 0))
+    host, tcp_port = server.getsockname()
+    out = tmp_path / "r6.loadcell.bin"
+
+    def adapter():
+        conn, _ = server.accept()
+        wait_for_size(out, 0)   # pyserial discards what arrives while it opens the port
+        conn.sendall(sent)
+        wait_for_size(out, len(sent))
+        conn.close()   # the adapter loses power
+        server.close()
+
+    threading.Thread(target=adapter, daemon=True).start()
+    with pytest.raises(AcquisitionFault, match=r"serial device socket://127\.0\.0\.1:\d+ vanished") as info:
+        record(f"socket://{host}:{tcp_port}", out, stall_s=5.0)
+    assert info.value.stats.stopped_by == "vanished" and info.value.capture == out
+    assert_kept(out, sent, 500)

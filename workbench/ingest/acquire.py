@@ -151,7 +151,12 @@ def record(port, out: str | Path, *, baudrate: int = 921600, duration_s: float |
                     lost_bytes = len(view) - done
 
             def read_port(size: int | None) -> bytes:
-                return ser.read(max(1, ser.in_waiting) if size is None else size)
+                if size is None:
+                    # what the port holds; when it says 0 or 1 (socket:// always says 1), up to 4 kB
+                    # within the port's timeout (0.1 s), so a network port is not read byte by byte
+                    waiting = ser.in_waiting
+                    size = waiting if waiting > 1 else 4096
+                return ser.read(size)
 
             try:
                 while True:
