@@ -68,6 +68,14 @@ class AcquisitionFault(DataError):
         super().__init__(fault, hint=hint)
 
 
+class _StoreFailed(Exception):
+    """Writing or syncing the capture failed (the OSError is ``cause``)."""
+
+    def __init__(self, cause: OSError):
+        super().__init__(str(cause))
+        self.cause = cause
+
+
 def open_port(port: str, baudrate: int, timeout_s: float = 0.1):
     """Open a serial port or pyserial URL (``/dev/ttyUSB0``, ``loop://``, ``socket://host:port``)."""
     import serial
@@ -121,8 +129,17 @@ def record(port, out: str | Path, *, baudrate: int = 921600, duration_s: float |
     if out.exists():
         raise ContractError("capture file exists; raw data is never overwritten", path=out,
                             hint="choose a new file name")
-    out.parent.mkdir(parents=True, exist_ok=True)
     ser = open_port(port, baudrate) if isinstance(port, str) else port
+    # the file is created once the port is open (pyserial clears the port's input on open): its
+    # appearance means the recording has started
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(out, "xb", buffering=0)  # unbuffered: every chunk is one write, the file's size what was stored
+    except OSError as exc:
+        if isinstance(port, str):
+            ser.close()
+        raise DataError(f"cannot create the capture: {exc.strerror or exc}", path=out,
+                        hint="check the folder, its permissions and free space") from exc
     port_name = port if isinstance(port, str) else (getattr(ser, "port", None) or getattr(ser, "portstr", None)
                                                      or "the serial port")
     stop = stop or threading.Event()
@@ -134,8 +151,7 @@ def record(port, out: str | Path, *, baudrate: int = 921600, duration_s: float |
     fault: tuple[str, BaseException | None] | None = None   # (kind, cause)
     lost_bytes = 0
     try:
-        # unbuffered: every chunk is one write (the file's size is what was stored), synced below
-        with open(out, "xb", buffering=0) as fh, _StopOnSignal(stop) as sig:
+        with fh, _StopOnSignal(stop) as sig:
             def take(chunk: bytes) -> None:
                 """Write the whole chunk (a short write continues); count and decode what was stored."""
                 nonlocal lost_bytes
@@ -144,11 +160,19 @@ def record(port, out: str | Path, *, baudrate: int = 921600, duration_s: float |
                 try:
                     while done < len(view):
                         done += fh.write(view[done:])
+                except OSError as exc:
+                    raise _StoreFailed(exc) from exc
                 finally:
                     if done:
                         stats.bytes += done
                         decoder.feed(view[:done])
                     lost_bytes = len(view) - done
+
+            def sync() -> None:
+                try:
+                    os.fsync(fh.fileno())
+                except OSError as exc:
+                    raise _StoreFailed(exc) from exc
 
             def read_port(size: int | None) -> bytes:
                 if size is None:
@@ -181,7 +205,7 @@ def record(port, out: str | Path, *, baudrate: int = 921600, duration_s: float |
                         fault = ("vanished", None) if gone else ("stalled", None)
                         break
                     if now - last_sync >= sync_every_s:
-                        os.fsync(fh.fileno())
+                        sync()
                         last_sync = now
                     if on_progress and now - last_progress >= progress_every_s:
                         _update(stats, decoder, now - t0, (decoder.frames - last_frames) / (now - last_progress))
@@ -199,9 +223,9 @@ def record(port, out: str | Path, *, baudrate: int = 921600, duration_s: float |
                         if not chunk:
                             break
                         take(chunk)
-                os.fsync(fh.fileno())
-            except OSError as exc:          # writing or syncing the capture failed: disk full, I/O error
-                fault = ("disk", exc)
+                sync()
+            except _StoreFailed as failed:  # writing or syncing the capture failed: disk full, I/O error
+                fault = ("disk", failed.cause)
                 if decoder.pending_bytes:   # a frame fragment cut by the failed write: end at the last frame
                     try:
                         os.ftruncate(fh.fileno(), stats.bytes - decoder.pending_bytes)
