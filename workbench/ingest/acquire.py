@@ -266,7 +266,7 @@ def _fault(kind: str, cause: BaseException | None, stats: AcquireStats, out: Pat
     if kind == "stalled":
         return AcquisitionFault(f"serial stream {port_name} stalled (no byte for {stall_s:g} s) after "
                                 f"{elapsed:.1f} s: {kept}", stats, capture,
-                                hint="check the load cell's power and baud rate; --stall-s sets the limit")
+                                hint="check the load cell's power and that it is streaming; --stall-s sets the limit")
     code = getattr(cause, "errno", None)
     what = {errno.ENOSPC: "disk full", errno.EDQUOT: "disk quota exceeded",
             errno.EFBIG: "file size limit reached"}.get(code, f"write failed ({getattr(cause, 'strerror', cause)})")
