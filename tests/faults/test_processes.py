@@ -147,3 +147,28 @@ def test_the_guard_ends_a_tree_even_where_a_grandchild_left_its_group_when_the_c
         assert v.survivors(20) == []
     finally:
         v.cleanup()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", SIGNALS, ids=IDS)
+def test_killing_optimize_leaves_no_process_and_no_output(sig, tmp_path, verb_runner):
+    from proctree import PROJECT
+
+    opt = verb_runner(["optimize", "--task", "straight", "--model", "ef", "--params",
+                       str(PROJECT / "pipelines" / "gait.yaml"), "--robot", str(PROJECT / "pipelines" / "robot.yaml"),
+                       "--pop", "8", "--gens", "400", "--no-mlflow",
+                       "--out", str(tmp_path / "gaits")], name="optimize")
+    opt.wait_for(lambda: "gen   2/400" in opt.text(), 240, "the second generation")
+    opt.kill(sig)
+    assert opt.survivors(20) == []
+    assert not (tmp_path / "gaits" / "straight-ef.json").exists()  # nothing half-written swapped in
+
+
+@pytest.mark.parametrize("sig", SIGNALS, ids=IDS)
+def test_killing_acquire_leaves_no_process_and_keeps_the_capture(sig, tmp_path, verb_runner):
+    acq = verb_runner(["acquire", "--port", "loop://", "--out", str(tmp_path / "r1.loadcell.bin"), "--stall-s", "0"],
+                      name="acquire")
+    acq.wait_for(lambda: (tmp_path / "r1.loadcell.bin").exists(), 120, "the capture file")
+    acq.kill(sig)
+    assert acq.survivors(20) == []
+    assert (tmp_path / "r1.loadcell.bin").exists()  # an (empty) capture of a silent port, closed, not deleted
