@@ -162,8 +162,9 @@ def test_clean_session_against_a_reference_claims_nothing(tmp_path):
 
 def test_tracks_are_cut_at_the_wall():
     tracks = {tr.trial_id: tr for tr in read_tracks(POOL)}
-    # ef-straight-2 swims into the tank's side wall (x = 3.8 m, held there by the pool: truth.json clamped_at_wall)
-    assert tracks["ef-straight-2"].cut_at_wall_s == pytest.approx(48, abs=3)
+    # the demo pool has trials that swim into the tank's side wall (held there by the pool: truth.json
+    # clamped_at_wall); which ones depends on the demo's gaits, so the rule is checked on every track
+    assert any(tr.cut_at_wall_s is not None for tr in tracks.values())
     for tid, tr in tracks.items():
         df = pl.read_parquet(POOL / "trajectories" / f"{tid}.parquet").filter(pl.col("time_s") >= 0)
         x, y = df["x_m"].to_numpy(), df["y_m"].to_numpy()
@@ -200,15 +201,17 @@ def test_cli_models_side_by_side_and_mlflow(tmp_path):
                  "--gaits", str(ROOT / "datasets" / "gaits"), "--robot", str(ROOT / "pipelines" / "robot.yaml"),
                  "--out", str(out), "--tracking-uri", uri]) == 0
     doc = json.loads((out / "trajectory_errors.json").read_text())
-    assert list(doc["models"]) == ["EF"] and doc["models"]["EF"]["n_trials"] == 8
+    tracks = read_tracks(new)  # the session diagnosed (its planted current moves where trials meet the wall)
+    n = len(tracks)
+    assert list(doc["models"]) == ["EF"] and doc["models"]["EF"]["n_trials"] == n
     assert doc["models"]["EF"]["rms_position_m"] > 0.5
-    assert "ef-straight-2" in doc["cut_at_wall"]
+    assert set(doc["cut_at_wall"]) == {tr.trial_id for tr in tracks if tr.cut_at_wall_s is not None}
     diag = json.loads((out / "trajectory_diagnosis.json").read_text())
     named = {e["name"]: e["params"] for e in diag["effects"]}
     assert named["yaw_drift"]["rate_dps"] == pytest.approx(-1.2, rel=0.2)
     assert named["current"]["cy_mps"] == pytest.approx(0.012, rel=0.2)
     assert (out / "trajectory_errors.png").stat().st_size > 10_000
-    assert "| EF | 8 |" in errors_table(doc)
+    assert f"| EF | {n} |" in errors_table(doc)
     metrics = json.loads((tmp_path / "metrics.json").read_text())["trajectory_error"]
     assert metrics["EF"]["rms_position_m"] == doc["models"]["EF"]["rms_position_m"]
 
