@@ -11,7 +11,7 @@ export MPLBACKEND := Agg
 # one BLAS thread: on 2 shared cores multi-threaded OpenBLAS made small products 1000x slower
 export OPENBLAS_NUM_THREADS := 1
 
-.PHONY: setup system-deps demo test test-fast bench lint clean-demo
+.PHONY: setup system-deps demo test test-fast bench paper lint clean-demo
 
 $(STAMP): pyproject.toml
 	@echo "== setting up $(VENV) (torch CPU wheel, then the workbench)"
@@ -44,6 +44,10 @@ test: setup system-deps
 
 test-fast: setup
 	$(BIN)/python -m pytest -q -m "not slow"
+
+# the paper's study end to end in a scratch copy of this commit, timed per stage (docs/pipeline.md)
+paper: setup
+	$(BIN)/python benchmarks/paper_scale.py
 
 bench: setup
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
