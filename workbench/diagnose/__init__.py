@@ -1,0 +1,1 @@
+"""Residual diagnosis: find what a leg force model lacks, on tunnel campaigns and pool trials (docs/diagnose.md)."""
