@@ -202,3 +202,21 @@ def test_block_sums_match_a_dense_product_channel_by_channel():
                          + [local[0].reshape(b * t, 6)[idx, c]], axis=-1)
             np.testing.assert_allclose(gr.G[c][k], x.T @ x, atol=1e-12)
             np.testing.assert_allclose(gr.b[c][k], x.T @ resid[idx, c], atol=1e-12)
+
+
+def test_a_campaign_too_small_to_hold_out_a_set_is_a_one_line_data_error(vl_frames):
+    """Two runs of one parameter set leave nothing to hold out: a DataError naming the cause, not a traceback."""
+    import polars as pl
+
+    from workbench.diagnose.data import DataSettings, prepare
+    from workbench.errors import DataError
+
+    from workbench.contract.columns import TUNNEL_MOTION_PARAMS
+
+    frame = vl_frames()
+    cols = [c for c in TUNNEL_MOTION_PARAMS if c in frame.columns]
+    first = frame.row(0, named=True)
+    one_set = frame.filter(pl.all_horizontal([pl.col(c) == first[c] for c in cols]))  # every flow speed of one set
+    assert one_set["run_id"].n_unique() >= 2
+    with pytest.raises(DataError, match="motion-parameter set"):
+        prepare(one_set, DataSettings(), source="tiny.parquet")
