@@ -40,14 +40,23 @@ def project_env(root: Path, **extra) -> dict:
     return env
 
 
+def _default_sigint() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Verb:
     """A ``workbench`` command run as a subprocess (own session, so the test's signals go to it alone)."""
 
     def __init__(self, args: list[str], env: dict, cwd: Path, log: Path):
         self.log_path = log
         self._log = open(log, "wb")
+        # SIGINT at its default in the command, as in a terminal: a test run started in the background
+        # (make test under nohup, CI runners) hands an ignored SIGINT down, which the command would keep
         self.proc = subprocess.Popen([sys.executable, "-m", "workbench.cli", *args], stdout=self._log,
-                                     stderr=subprocess.STDOUT, env=env, cwd=cwd, start_new_session=True)
+                                     stderr=subprocess.STDOUT, env=env, cwd=cwd, start_new_session=True,
+                                     preexec_fn=_default_sigint)
         self.seen: dict[int, tuple[float, str]] = {}
 
     def text(self) -> str:
