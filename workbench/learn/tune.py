@@ -431,6 +431,10 @@ def _spawn_workers(spec: dict, tune: TuneCfg, report: Callable[[str], None] | No
                         say(f"worker {i} restarted for the {left} trial(s) of its share still owed")
                         running[i] = _start_worker(spec, i, left, report)
                         continue
+                    if left <= 0:  # killed after its share was done (while exiting): nothing is owed
+                        say(f"worker {i} had finished its {slots[i]} trial(s); nothing owed")
+                        codes[i] = 0
+                        continue
                 codes[i] = rc
     except BaseException:
         procs.interrupted()
