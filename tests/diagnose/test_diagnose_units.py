@@ -208,10 +208,9 @@ def test_a_campaign_too_small_to_hold_out_a_set_is_a_one_line_data_error(vl_fram
     """Two runs of one parameter set leave nothing to hold out: a DataError naming the cause, not a traceback."""
     import polars as pl
 
+    from workbench.contract.columns import TUNNEL_MOTION_PARAMS
     from workbench.diagnose.data import DataSettings, prepare
     from workbench.errors import DataError
-
-    from workbench.contract.columns import TUNNEL_MOTION_PARAMS
 
     frame = vl_frames()
     cols = [c for c in TUNNEL_MOTION_PARAMS if c in frame.columns]
