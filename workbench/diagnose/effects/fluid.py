@@ -15,7 +15,24 @@ from workbench.diagnose.evidence import ccf_clause
 from workbench.diagnose.flowterms import add_point_force, first_order_lag
 
 
-class AddedMassError(Effect):
+class _UnitTermEffect(Effect):
+    """An effect that is one parameter times one kinematic unit load on every channel.
+
+    Subclasses name the parameter (``param``) and the unit load's method of the kinematics
+    (``unit``, e.g. ``"drag_unit"``); not an effect itself (no ``name``, not in :data:`EFFECTS`).
+    """
+
+    param: str = ""
+    unit: str = ""
+
+    def linear_names(self):  # noqa: D102
+        return [self.param]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        return Terms([self.param], [getattr(ctx.kin, self.unit)()], [ALL_CHANNELS])
+
+
+class AddedMassError(_UnitTermEffect):
     """Extra added mass on the web normal: dF_n = -delta_kg a_n."""
 
     name = "added_mass_error"
@@ -30,17 +47,13 @@ class AddedMassError(Effect):
     def truth_notes(cls, t):  # noqa: D102
         return {"delta_kg": "truth's m_a + web mass - the EF's 2 pi rho a^3 + m_web on a_n"}
 
+    param, unit = "delta_kg", "added_mass_unit"
+
     def hint(self, ev, params: dict) -> str:  # noqa: D102
         return ccf_clause(ev, "model_force_accel", "the model's force derivatives")
 
-    def linear_names(self):  # noqa: D102
-        return ["delta_kg"]
 
-    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
-        return Terms(["delta_kg"], [ctx.kin.added_mass_unit()], [ALL_CHANNELS])
-
-
-class DragCoefficientError(Effect):
+class DragCoefficientError(_UnitTermEffect):
     """Extra normal drag: dF_n = 0.5 rho S delta_c |V_n| V_n."""
 
     name = "drag_coefficient_error"
@@ -51,25 +64,16 @@ class DragCoefficientError(Effect):
     def truth_params(cls, t):  # noqa: D102
         return {"delta_c": -t.ef.c_r + t.p.get("extra_normal_drag_c", 0.0)}
 
-    def linear_names(self):  # noqa: D102
-        return ["delta_c"]
-
-    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
-        return Terms(["delta_c"], [ctx.kin.drag_unit()], [ALL_CHANNELS])
+    param, unit = "delta_c", "drag_unit"
 
 
-class Lift(Effect):
+class Lift(_UnitTermEffect):
     """Lift from the tangential relative flow turned to the normal: dF_n = 0.5 rho S cl |V| V_t."""
 
     name = "lift"
     ranges = {"cl": (-3.0, 3.0)}
     formula = "dF_n = 0.5 rho S cl |V| V_t (web normal, at Q)"
-
-    def linear_names(self):  # noqa: D102
-        return ["cl"]
-
-    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
-        return Terms(["cl"], [ctx.kin.lift_unit()], [ALL_CHANNELS])
+    param, unit = "cl", "lift_unit"
 
 
 class LinkDrag(Effect):
