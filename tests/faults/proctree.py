@@ -69,8 +69,10 @@ class Verb:
         except psutil.NoSuchProcess:
             return []
         for k in kids:
+            # always the latest command line: a child caught between fork and exec still shows its
+            # parent's (procs.popen runs a preexec function there), and would never be told apart
             try:
-                self.seen.setdefault(k.pid, (k.create_time(), " ".join(k.cmdline())[:160]))
+                self.seen[k.pid] = (k.create_time(), " ".join(k.cmdline())[:160])
             except psutil.Error:
                 pass
         return kids
