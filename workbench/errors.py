@@ -58,8 +58,29 @@ class CampaignRefused(WorkbenchError):
         )
 
 
+class ParamsError(WorkbenchError):
+    """A parameter file (pipelines/*.yaml or a --params file) is unusable.
+
+    Missing, not YAML, a section that is not there, an unknown key (``where`` is its key path, e.g. ``diagnose.fit.surrogate_serch``;
+    the hint names the nearest allowed key and all of them), a value of the wrong type or out of range.
+    """
+
+    @property
+    def key(self) -> str | None:
+        """The key path of the offending setting (``diagnose.fit.surrogate_search``), when known."""
+        return self.where
+
+
+class ConvergenceError(WorkbenchError):
+    """A numerical solver did not converge: what it produced is not a result (a fit, a flow field, a solve)."""
+
+
 class ModelError(WorkbenchError):
     """A model cannot be found, loaded or applied."""
+
+
+class ModelLoadError(ModelError):
+    """A model's files or registry entry cannot be read: missing, corrupt, or from an incompatible version."""
 
 
 class StageError(WorkbenchError):
