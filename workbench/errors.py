@@ -41,6 +41,10 @@ class ContractError(WorkbenchError):
     """A file or folder breaks the data contract (manifest, columns, paths, schema version)."""
 
 
+class OutputError(ContractError):
+    """An output cannot be written as asked: it would replace what the verb did not write, or lies in raw data."""
+
+
 class DataError(WorkbenchError):
     """A file follows the contract's shape but its data is unusable (NaN, gaps, no frames, ...)."""
 

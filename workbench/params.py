@@ -18,6 +18,7 @@ combinations) run as usual; a ``ValueError`` or ``TypeError`` they raise is repo
 from __future__ import annotations
 
 import dataclasses
+import datetime as _dt
 import difflib
 import functools
 import math
@@ -245,6 +246,8 @@ def _coerce_scalar(value: Any, tp: type, where: str, path) -> Any:
     if tp is bool or tp is str:
         if isinstance(value, tp):
             return value
+        if tp is str and isinstance(value, _dt.date):  # YAML reads 2025-03-14 as a date
+            return value.isoformat()
     elif isinstance(value, bool):
         pass  # true/false is not a number
     elif tp is int:

@@ -13,7 +13,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from workbench.errors import ContractError
+from workbench.errors import ParamsError
 
 
 def project_root(start: str | Path | None = None) -> Path:
@@ -44,32 +44,22 @@ def mlflow_tracking_uri(explicit: str | None = None, root: Path | None = None) -
 
 
 def mlflow_artifact_root(root: Path | None = None) -> str:
-    """Default artifact location for experiments the workbench creates in a local store."""
+    """Artifact location of the experiments the workbench creates in the project's own store: ``<root>/mlartifacts``.
+
+    (In general beside the sqlite store file: :func:`workbench.tracking.artifact_root`.)
+    """
     return ((root or project_root()) / "mlartifacts").as_uri()
 
 
 def setup_mlflow(tracking_uri: str | None = None, experiment: str | None = None) -> str:
     """Point MLflow at the store and (optionally) select/create an experiment; returns the URI.
 
-    Experiments created in the local sqlite store keep their artifacts in ``mlartifacts/``.
+    Kept for callers of earlier versions: the work is done by :func:`workbench.tracking.setup`
+    (which also re-points a copied project's store at its own ``mlartifacts/``).
     """
-    import mlflow
+    from workbench.tracking import setup
 
-    uri = mlflow_tracking_uri(tracking_uri)
-    mlflow.set_tracking_uri(uri)
-    if experiment:
-        if mlflow.get_experiment_by_name(experiment) is None:
-            kwargs = {}
-            if uri.startswith("sqlite:"):
-                kwargs["artifact_location"] = mlflow_artifact_root()
-            # MLflow 3's UI opens GenAI pages for experiments of unknown kind; ours are model training
-            kwargs["tags"] = {"mlflow.experimentKind": "custom_model_development"}
-            try:
-                mlflow.create_experiment(experiment, **kwargs)
-            except Exception:  # another process created it first
-                pass
-        mlflow.set_experiment(experiment)
-    return uri
+    return setup(tracking_uri, experiment)
 
 
 @lru_cache(maxsize=32)
@@ -86,12 +76,12 @@ def load_params(path: str | Path, section: str | None = None) -> Any:
     if not p.is_absolute() and not p.exists():
         p = project_root() / p
     if not p.is_file():
-        raise ContractError("parameter file not found", path=p)
+        raise ParamsError("parameter file not found", path=p)
     doc = _load_yaml(str(p), p.stat().st_mtime)
     if section is None:
         return doc
     if section not in doc:
-        raise ContractError(f"no section '{section}' in parameter file", path=p)
+        raise ParamsError(f"no section '{section}' in parameter file", path=p)
     return doc[section]
 
 

@@ -131,7 +131,8 @@ def test_a_rig_that_really_goes_further_raises_the_limit_in_the_params(base, tmp
     assert out.is_file()
     params.write_text("ingest:\n  limits:\n    flow_speed_max: 4.0\n")
     assert main(["ingest", str(root), "--out", str(out), "--quiet", "--params", str(params)]) == 2
-    assert "unknown limit(s) ['flow_speed_max']" in capsys.readouterr().err
+    assert "ingest.limits.flow_speed_max: unknown setting 'flow_speed_max' (did you mean 'flow_speed_mps_max'?" \
+        in capsys.readouterr().err
 
 
 def test_a_bom_in_campaign_toml_is_accepted(base, tmp_path, capsys):

@@ -7,7 +7,7 @@ import polars as pl
 import pytest
 from towing_fixture import PAPER, carriage_profile, towing_frame
 
-from workbench.errors import ContractError, DataError
+from workbench.errors import ContractError, DataError, ParamsError
 from workbench.hydro.drag import DragFitParams, PlateauParams, fit_drag, mean_sem, steady_window
 from workbench.project import load_params, project_root
 
@@ -124,9 +124,9 @@ def test_drag_json_follows_the_contract(paper_fit):
 def test_parameters_from_the_repository_file_and_typos_refused():
     params = DragFitParams.from_dict(load_params(project_root() / "pipelines/drag.yaml", "fit"))
     assert params == DragFitParams()
-    with pytest.raises(ContractError, match="plateau.smoth_s"):
+    with pytest.raises(ParamsError, match=r"fit\.plateau\.smoth_s.*did you mean .smooth_s"):
         DragFitParams.from_dict({"plateau": {"smoth_s": 1.0}})
-    with pytest.raises(ContractError, match="weighting"):
+    with pytest.raises(ParamsError, match="weighting"):
         DragFitParams.from_dict({"weighting": "magic"})
 
 

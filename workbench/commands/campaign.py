@@ -38,16 +38,15 @@ def register(sub) -> None:
 
 
 def _validate(folder: Path):
-    from workbench.commands.ingest import PARAMS_FILE, load_section
+    from workbench.commands.ingest import load_ingest_params
     from workbench.console import info, progress
     from workbench.contract.campaign import check_manifest
-    from workbench.ingest.params import IngestParams
     from workbench.ingest.validate import validate_campaign
 
-    values = load_section(None, "ingest", PARAMS_FILE)
+    params = load_ingest_params(None)
     camp, _ = check_manifest(folder)
     with progress(f"validate {folder.name}", total=len(camp.runs) if camp else 0, unit=" runs") as bar:
-        result = validate_campaign(folder, IngestParams.from_mapping(values), progress=bar.advance)
+        result = validate_campaign(folder, params, progress=bar.advance)
     for e in result.errors:
         print(f"error: {e.format()}", file=sys.stderr)
     for w in result.warnings:

@@ -80,16 +80,11 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _section(path: str, default_path: str, section: str) -> dict | None:
-    """A parameter-file section; None when the default file is absent (built-in defaults apply)."""
-    from pathlib import Path
+def _section(path: str, default_path: str, section: str) -> dict:
+    """A parameter-file section (workbench.params.read_section); empty when the default file is absent."""
+    from workbench.params import read_section
 
-    from workbench.project import load_params, project_root
-
-    if path == default_path and not Path(path).is_file() and not (project_root() / path).is_file():
-        return None
-    doc = load_params(path)
-    return (doc or {}).get(section) or {}
+    return read_section(path, section, default=default_path)[0]
 
 
 def _frame(args, path: str | None = None):

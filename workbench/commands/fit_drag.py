@@ -34,30 +34,21 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _section(path: str, default_path: str, section: str) -> dict | None:
-    """A parameter-file section; None when the default file is absent (built-in defaults apply)."""
-    from pathlib import Path
-
-    from workbench.project import load_params, project_root
-
-    if path == default_path and not Path(path).is_file() and not (project_root() / path).is_file():
-        return None
-    return load_params(path).get(section) or {}
-
-
 def _load_fit_params(path: str):
     from workbench.hydro.drag import DragFitParams
+    from workbench.params import load_settings
 
-    section = _section(path, "pipelines/drag.yaml", "fit")
-    try:
-        return DragFitParams.from_dict(section)
-    except TypeError as exc:
-        from workbench.errors import ContractError
-
-        raise ContractError(f"bad drag-fit parameter: {exc}", path=path) from None
+    return load_settings(DragFitParams, path, "fit", default="pipelines/drag.yaml")
 
 
-def _read(source, skip_bad_runs: bool, ingest_params: dict | None):
+def _load_ingest_params(path: str):
+    from workbench.ingest.params import IngestParams
+    from workbench.params import load_settings
+
+    return load_settings(IngestParams, path, "ingest", default="pipelines/ingest.yaml")
+
+
+def _read(source, skip_bad_runs: bool, ingest_params):
     """The processed frame and a run -> heading map (None for a Parquet file: its heading column rules)."""
     from pathlib import Path
 
@@ -96,8 +87,7 @@ def run(args) -> int:
 
     check_replaceable(args.out, "fit-drag")  # before the work, not after it
     params = _load_fit_params(args.params)
-    frame, headings = _read(args.campaign, args.skip_bad_runs,
-                            _section(args.ingest_params, "pipelines/ingest.yaml", "ingest"))
+    frame, headings = _read(args.campaign, args.skip_bad_runs, _load_ingest_params(args.ingest_params))
     try:
         fit = fit_drag(frame, headings=headings, params=params)
     except WorkbenchError as exc:

@@ -43,16 +43,12 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def load_section(path: Path | None, section: str, default_file: str) -> dict:
-    """A section of a parameter file: the explicit one, else the project's default file if present."""
-    from workbench.project import load_params, project_root
+def load_ingest_params(path: Path | None, **overrides):
+    """The ``ingest`` settings: the --params file, else the project's pipelines/ingest.yaml, else defaults."""
+    from workbench.ingest.params import IngestParams
+    from workbench.params import load_settings
 
-    if path is None:
-        candidate = project_root() / default_file
-        if not candidate.is_file():
-            return {}
-        path = candidate
-    return dict(load_params(path, section) or {})
+    return load_settings(IngestParams, path, "ingest", default=PARAMS_FILE, overrides=overrides)
 
 
 def run(args) -> int:
@@ -63,16 +59,14 @@ def run(args) -> int:
     from workbench.ingest.quality import render_quality, summary_line
     from workbench.project import datasets_dir
 
-    values = load_section(args.params, "ingest", PARAMS_FILE)
-    if args.workers is not None:
-        values["workers"] = args.workers
+    params = load_ingest_params(args.params, workers=args.workers)
     camp = load_campaign(args.campaign)
     out = args.out or datasets_dir() / "processed" / f"{camp.id}.parquet"
     if args.quiet:
-        result = ingest_to_file(args.campaign, out, params=values, skip_bad_runs=args.skip_bad_runs, force=args.force)
+        result = ingest_to_file(args.campaign, out, params=params, skip_bad_runs=args.skip_bad_runs, force=args.force)
     else:
         with progress(f"ingest {camp.id}", total=len(camp.runs), unit=" runs") as bar:
-            result = ingest_to_file(args.campaign, out, params=values, skip_bad_runs=args.skip_bad_runs,
+            result = ingest_to_file(args.campaign, out, params=params, skip_bad_runs=args.skip_bad_runs,
                                     force=args.force, progress=bar.advance)
     if result is None:
         meta = read_provenance(out)  # ingest_to_file has brought quality.json in line with it

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from workbench.commands._help import add_verb
-from workbench.commands.ingest import PARAMS_FILE, load_section
+from workbench.commands.ingest import PARAMS_FILE
 
 
 def register(sub) -> None:
@@ -38,14 +38,11 @@ def run(args) -> int:
     from workbench.errors import ContractError
     from workbench.ingest import read_processed, read_provenance
     from workbench.ingest.provenance import to_arrow, write_table
+    from workbench.params import load_settings
     from workbench.signals.interpolation import InterpolationParams, interpolate_with_report
 
-    values = load_section(args.params, "interpolate", PARAMS_FILE)
-    if args.speeds:
-        values["speeds_mps"] = args.speeds
-    if args.extrapolate:
-        values["extrapolate"] = True
-    params = InterpolationParams.from_mapping(values)
+    params = load_settings(InterpolationParams, args.params, "interpolate", default=PARAMS_FILE,
+                           overrides={"speeds_mps": args.speeds or None, "extrapolate": args.extrapolate or None})
     meta = read_provenance(args.input)
     if meta.get("facility") != "water_tunnel":
         raise ContractError("flow-speed interpolation applies to water-tunnel datasets", path=args.input)

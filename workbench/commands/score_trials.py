@@ -44,17 +44,14 @@ def register(sub) -> None:
 
 
 def load_scoring_params(path: Path | None):
-    """The ``scoring`` section of the given file, or of pipelines/trials.yaml, or the defaults."""
-    from workbench.project import load_params, project_root
+    """The ``scoring`` section of the given file, or of pipelines/trials.yaml, or the defaults.
+
+    A file without a ``scoring`` section (e.g. one holding only ``pool``) gives the defaults.
+    """
+    from workbench.params import load_settings
     from workbench.trials.params import ScoringParams
 
-    if path is None:
-        default = project_root() / "pipelines" / "trials.yaml"
-        if not default.is_file():
-            return ScoringParams()
-        path = default
-    doc = load_params(path)
-    return ScoringParams.from_mapping(doc.get("scoring") if isinstance(doc, dict) else None, source=str(path))
+    return load_settings(ScoringParams, path, "scoring", default="pipelines/trials.yaml", required=False)
 
 
 def run(args) -> int:

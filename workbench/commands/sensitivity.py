@@ -40,15 +40,14 @@ def run(args) -> int:
 
     check_replaceable(args.out, "sensitivity")  # a wrong --out is refused before the work, not after
 
-    from workbench.commands.simulate import read_gaits_file
+    from workbench.commands.simulate import read_gaits_file, robot_simulation_settings
     from workbench.console import info
     from workbench.errors import ContractError
     from workbench.gait.objectives import TaskSpec
     from workbench.gait.sensitivity import FACTORS, figure_png, run_sensitivity
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
-    from workbench.hydro.simulator import GaitBatch, simulation_settings
-    from workbench.project import load_params
+    from workbench.hydro.simulator import GaitBatch
 
     gaits = read_gaits_file(args.gaits, None)[: max(args.best, 2)]
     doc = json.loads(Path(args.gaits).read_text(encoding="utf-8"))
@@ -58,9 +57,9 @@ def run(args) -> int:
     try:
         spec = TaskSpec.from_dict(task_doc["task"], task_doc)
         batch = GaitBatch.from_params([p for _, p in gaits])
-        settings = simulation_settings(load_params(args.robot).get("simulation"))
     except ValueError as exc:
         raise ContractError(str(exc), path=args.gaits) from None
+    settings = robot_simulation_settings(args.robot)
     settings["duration_s"] = spec.cap_s
     settings.update({k: v for k, v in ((doc.get("settings") or {}).get("simulation") or {}).items()
                      if k in ("dt_s", "tol_mps", "max_iter", "relaxation")})

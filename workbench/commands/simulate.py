@@ -104,6 +104,19 @@ def read_gaits_file(path, ranks: list[int] | None) -> list[tuple[str, dict]]:
     return out
 
 
+def robot_simulation_settings(robot: str) -> dict:
+    """The robot file's optional ``simulation`` section, checked by the simulator (a bad value: ParamsError)."""
+    from workbench.errors import ParamsError
+    from workbench.hydro.simulator import simulation_settings
+    from workbench.params import read_section
+
+    section, _ = read_section(robot, "simulation", required=False)
+    try:
+        return simulation_settings(section)
+    except ValueError as exc:
+        raise ParamsError(str(exc), path=robot, where="simulation") from None
+
+
 def run(args) -> int:
     """Load gaits, robot and leg model, simulate the batch, write the outputs."""
     from pathlib import Path
@@ -117,8 +130,7 @@ def run(args) -> int:
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
     from workbench.hydro.sim_report import paths_figure_png, summarise
-    from workbench.hydro.simulator import GaitBatch, simulate, simulation_settings
-    from workbench.project import load_params
+    from workbench.hydro.simulator import GaitBatch, simulate
 
     gaits: list[tuple[str, dict]] = []
     if args.gaits:
@@ -132,10 +144,7 @@ def run(args) -> int:
     except ValueError as exc:
         raise ContractError(str(exc), path=args.gaits) from None
     robot = load_robot(args.robot, drag_json=args.drag)
-    try:
-        settings = simulation_settings(load_params(args.robot).get("simulation"))
-    except ValueError as exc:
-        raise ContractError(str(exc), path=args.robot) from None
+    settings = robot_simulation_settings(args.robot)
     if args.duration is not None:
         settings["duration_s"] = args.duration
     if args.dt is not None:

@@ -24,6 +24,7 @@ TUNNEL_EXAMPLES = """\
       --effect loadcell_crosstalk:x_fy_fz=0.03,x_fz_fy=0.02 --effect electrical_pickup:f_hz=2.7
   workbench virtual-lab tunnel datasets/raw/t4 --flow-speeds 0 0.2 --cycles 3 --truth ef
   workbench virtual-lab tunnel datasets/raw/demo-tunnel --params pipelines/virtual_lab.yaml
+  workbench virtual-lab tunnel datasets/raw/next-1 --plan datasets/plans/next-campaign.toml   # a plan's runs
 """
 
 TOWING_EXAMPLES = """\
@@ -66,6 +67,9 @@ def register(sub) -> None:
                    help="motion logs carry measured angles ([motion] feedback)")
     t.add_argument("--bin-faults", action="store_true", default=None,
                    help="the first .bin capture starts mid-frame, has bad/dropped bytes and a counter wrap")
+    t.add_argument("--plan", type=Path, metavar="PLAN.toml",
+                   help="measure exactly the runs of a planned campaign (workbench plan-campaign): same ids, flow "
+                        "speeds, parameters and cycles; --scale, --flow-speeds and --cycles do not apply")
     t.set_defaults(func=_tunnel)
 
     w = vsub.add_parser("towing", help="a towing-tank campaign (body drag, paper's quadratic fits)",
@@ -97,11 +101,9 @@ def register(sub) -> None:
 
 
 def _section(path: Path | None, name: str) -> dict:
-    if path is None:
-        return {}
-    from workbench.project import load_params
+    from workbench.params import read_section
 
-    return dict(load_params(path, name) or {})
+    return read_section(path, name)[0]
 
 
 def _split(section: dict, keys: tuple[str, ...]) -> tuple[dict, dict]:
@@ -137,7 +139,8 @@ def _tunnel(args) -> int:
         effects=effects, flow_speeds=_pick(args.flow_speeds, gen.get("flow_speeds_mps"), None),
         grid=gen.get("grid"), cycles=_pick(args.cycles, gen.get("cycles"), None),
         feedback=_pick(args.feedback, gen.get("feedback"), None),
-        bin_faults=bool(_pick(args.bin_faults, gen.get("bin_faults"), False)), settings=rig, show_progress=True)
+        bin_faults=bool(_pick(args.bin_faults, gen.get("bin_faults"), False)), settings=rig, show_progress=True,
+        plan=getattr(args, "plan", None))
     _summary(out, "water tunnel", time.perf_counter() - t0)
     return 0
 

@@ -19,7 +19,7 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Mapping
 
-from workbench.errors import ContractError
+from workbench.errors import ContractError, ParamsError
 
 _HINT = "check campaign.toml; if the rig really goes there, raise ingest.limits.{key} in pipelines/ingest.yaml"
 
@@ -56,19 +56,14 @@ class Limits:
                                                    and math.isfinite(getattr(self, f.name))
                                                    and getattr(self, f.name) > 0)]
         if bad:
-            raise ContractError(f"limits {bad} must be positive finite numbers", where="ingest.limits")
+            raise ParamsError(f"limits {bad} must be positive finite numbers", where="ingest.limits")
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any] | None) -> "Limits":
-        """From the ``limits`` mapping of the ingest parameters; unknown keys are an error."""
-        if isinstance(values, Limits):
-            return values
-        values = dict(values or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ContractError(f"unknown limit(s) {unknown}", where="ingest.limits", hint=f"known: {sorted(known)}")
-        return cls(**values)
+        """From the ``limits`` mapping of the ingest parameters (workbench.params: unknown keys are a ParamsError)."""
+        from workbench.params import build
+
+        return build(cls, values, key="ingest.limits")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain mapping (for reports)."""

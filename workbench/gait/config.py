@@ -116,7 +116,7 @@ def config_from_dict(doc: Mapping[str, Any], path: str | Path = "gait parameters
             robot=str(doc.get("robot", "pipelines/robot.yaml")), drag_json=doc.get("drag_json"), retain=retain,
             verify_direct=verify,
             torch_threads=threads, space=GaitSpace.from_dict(doc.get("space")),
-            tasks=tasks, nsga2=NSGA2Settings.from_dict(doc.get("nsga2")),
+            tasks=tasks, nsga2=NSGA2Settings.from_dict(doc.get("nsga2"), str(path)),
             simulation=SimSettings.from_dict(doc.get("simulation")),
             tabulation=TabulationSettings.from_dict(doc.get("tabulation")), controller=controller, tracking=tracking)
     except (ValueError, TypeError) as exc:

@@ -37,13 +37,11 @@ class NSGA2Settings:
             raise ValueError("nsga2 needs pop_size >= 4 and n_gen >= 1")
 
     @classmethod
-    def from_dict(cls, doc: Mapping[str, Any] | None) -> "NSGA2Settings":
-        """From the parameter file's ``nsga2`` section (unknown keys refused)."""
-        doc = dict(doc or {})
-        unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ValueError(f"unknown nsga2 setting(s) {unknown}")
-        return cls(**{k: (int(v) if k in ("pop_size", "n_gen", "seed") else float(v)) for k, v in doc.items()})
+    def from_dict(cls, doc: Mapping[str, Any] | None, path: str | None = None) -> "NSGA2Settings":
+        """From the ``nsga2`` section of the parameter file ``path`` (workbench.params: unknown keys refused)."""
+        from workbench.params import build
+
+        return build(cls, doc, key="optimize.nsga2", path=path)
 
     @property
     def evaluations(self) -> int:

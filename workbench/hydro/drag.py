@@ -14,8 +14,8 @@ standard errors, R^2, a confidence band and flags for physically doubtful fits.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields, replace
-from typing import Any, Mapping
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Literal, Mapping
 
 import numpy as np
 
@@ -48,7 +48,7 @@ class DragFitParams:
     #: Sokal's window for the integrated autocorrelation time behind a run's standard error
     acf_window_c: float = 5.0
     #: "sem": weight runs by 1/SEM^2; "none": ordinary least squares
-    weighting: str = "sem"
+    weighting: Literal["sem", "none"] = "sem"
     #: floor on a run's standard error (N), so a noise-free run cannot take all the weight
     sigma_floor_n: float = 1e-3
     confidence: float = 0.95
@@ -66,18 +66,10 @@ class DragFitParams:
 
     @classmethod
     def from_dict(cls, doc: Mapping[str, Any] | None) -> "DragFitParams":
-        """From the parsed ``fit`` section; unknown keys are an error (typos must not pass silently)."""
-        doc = dict(doc or {})
-        plateau = dict(doc.pop("plateau", {}) or {})
-        known = {f.name for f in fields(cls)} - {"plateau"}
-        pknown = {f.name for f in fields(PlateauParams)}
-        bad = sorted(set(doc) - known) + sorted(f"plateau.{k}" for k in set(plateau) - pknown)
-        if bad:
-            raise ContractError(f"unknown drag-fit parameter(s) {bad}")
-        params = cls(plateau=PlateauParams(**plateau), **doc)
-        if params.weighting not in ("sem", "none"):
-            raise ContractError(f"weighting must be 'sem' or 'none', got {params.weighting!r}")
-        return params
+        """From the parsed ``fit`` section (workbench.params: unknown keys, wrong types are a ParamsError)."""
+        from workbench.params import build
+
+        return build(cls, doc, key="fit")
 
 
 @dataclass(frozen=True)

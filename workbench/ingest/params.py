@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Any, Mapping
 
 from workbench.contract.limits import Limits
-from workbench.errors import ContractError
+from workbench.errors import ParamsError
 
 
 @dataclass(frozen=True)
@@ -57,20 +57,16 @@ class IngestParams:
         if self.max_nan_run < 0 or self.max_rest_s < 0 or self.workers < 0:
             problems.append("max_nan_run, max_rest_s and workers must not be negative")
         if problems:
-            raise ContractError("; ".join(problems), where="ingest parameters")
+            raise ParamsError("; ".join(problems), where="ingest")
         if not isinstance(self.limits, Limits):
             object.__setattr__(self, "limits", Limits.from_mapping(self.limits))
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any] | None) -> "IngestParams":
-        """Build from a parameter-file section; unknown keys are an error (a typo would be silent)."""
-        values = dict(values or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ContractError(f"unknown ingest parameter(s) {unknown}", where="ingest parameters",
-                                hint=f"known: {sorted(known)}")
-        return cls(**values)
+        """Build from a parameter-file section (workbench.params: unknown keys and wrong types are a ParamsError)."""
+        from workbench.params import build
+
+        return build(cls, values, key="ingest")
 
     def recorded(self) -> dict[str, Any]:
         """The parameters that shape the result (what the file metadata records and compares)."""

@@ -45,15 +45,10 @@ class InterpolationParams:
 
     @classmethod
     def from_mapping(cls, values: dict[str, Any] | None) -> "InterpolationParams":
-        """From a parameter-file section; unknown keys are an error."""
-        values = dict(values or {})
-        known = set(cls.__dataclass_fields__)
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ContractError(f"unknown interpolation parameter(s) {unknown}", where="interpolate parameters")
-        if "speeds_mps" in values:
-            values["speeds_mps"] = tuple(float(v) for v in values["speeds_mps"])
-        return cls(**values)
+        """From a parameter-file section (workbench.params: unknown keys and wrong types are a ParamsError)."""
+        from workbench.params import build
+
+        return build(cls, values, key="interpolate")
 
 
 @dataclass

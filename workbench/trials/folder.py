@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from workbench.contract.trials import TrialsFolder, TrialSpec, load_trials
-from workbench.errors import WorkbenchError
+from workbench.errors import ContractError, WorkbenchError
 from workbench.trials.params import ScoringParams
 from workbench.trials.trial import TrialResult, score_trial
 
@@ -62,7 +62,7 @@ def score_folder(root: str | Path, params: ScoringParams | None = None, *, overl
         known = {s.id for s in specs}
         missing = [t for t in trial_ids if t not in known]
         if missing:
-            raise WorkbenchError(f"no trial(s) {', '.join(missing)} in the manifest", path=folder.manifest)
+            raise ContractError(f"no trial(s) {', '.join(missing)} in the manifest", path=folder.manifest)
         specs = [s for s in specs if s.id in trial_ids]
     failures: dict[str, str] = {}
     jobs = []

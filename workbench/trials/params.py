@@ -6,10 +6,8 @@ are the knobs of detection, tracking and output, with the defaults the docs just
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Mapping
-
-from workbench.errors import ContractError
 
 
 @dataclass(frozen=True)
@@ -69,28 +67,10 @@ class ScoringParams:
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any] | None, *, source: str = "scoring params") -> "ScoringParams":
-        """Build from a mapping, refusing unknown keys (a typo must not pass silently)."""
-        m = dict(m or {})
-        known = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(m) - set(known))
-        if unknown:
-            raise ContractError(f"unknown scoring parameter(s) {', '.join(unknown)}", path=source,
-                                hint=f"known: {', '.join(known)}")
-        out = {}
-        for k, v in m.items():
-            default = getattr(cls, k)
-            if isinstance(default, bool):
-                if not isinstance(v, bool):
-                    raise ContractError(f"scoring parameter {k} must be true or false", path=source)
-            elif isinstance(default, int) and not isinstance(default, bool):
-                if not isinstance(v, int) or isinstance(v, bool):
-                    raise ContractError(f"scoring parameter {k} must be an integer", path=source)
-            elif isinstance(default, float):
-                if not isinstance(v, (int, float)) or isinstance(v, bool):
-                    raise ContractError(f"scoring parameter {k} must be a number", path=source)
-                v = float(v)
-            out[k] = v
-        return cls(**out)
+        """Build from the ``scoring`` section (workbench.params: unknown keys and wrong types are a ParamsError)."""
+        from workbench.params import build
+
+        return build(cls, m, key="scoring", path=None if source == "scoring params" else source)
 
     def replace(self, **changes) -> "ScoringParams":
         """A copy with some fields changed (None values are ignored)."""

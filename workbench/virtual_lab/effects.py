@@ -29,7 +29,7 @@ import numpy as np
 from scipy import signal
 
 from workbench.contract.columns import WRENCH_CHANNELS
-from workbench.errors import WorkbenchError
+from workbench.errors import ParamsError
 
 STAGES = ("motion", "flow", "force", "reading")
 _SHORT = tuple(c.split("_")[0] for c in WRENCH_CHANNELS)  # fx, fy, fz, tx, ty, tz
@@ -407,14 +407,14 @@ def _value(name: str, key: str, raw) -> float | str:
         chans = chans.replace("|", "+").replace(" ", "")
         for ch in chans.split("+"):
             if ch not in WRENCH_CHANNELS:
-                raise WorkbenchError(f"effect {name}: unknown channel {ch!r}", hint=f"one of {', '.join(WRENCH_CHANNELS)}")
+                raise ParamsError(f"effect {name}: unknown channel {ch!r}", hint=f"one of {', '.join(WRENCH_CHANNELS)}")
         return chans
     try:
         v = float(raw)
     except (TypeError, ValueError):
-        raise WorkbenchError(f"effect {name}: parameter {key} = {raw!r} is not a number") from None
+        raise ParamsError(f"effect {name}: parameter {key} = {raw!r} is not a number") from None
     if not np.isfinite(v):
-        raise WorkbenchError(f"effect {name}: parameter {key} must be finite")
+        raise ParamsError(f"effect {name}: parameter {key} must be finite")
     return v
 
 
@@ -428,7 +428,7 @@ def parse_effect(spec: str | EffectSpec | Mapping) -> Effect:
         for item in filter(None, (s.strip() for s in rest.split(","))):
             key, eq, val = item.partition("=")
             if not eq:
-                raise WorkbenchError(f"effect spec {spec!r}: expected key=value, got {item!r}",
+                raise ParamsError(f"effect spec {spec!r}: expected key=value, got {item!r}",
                                      hint="e.g. servo_lag:tau_s=0.04")
             given[key.strip()] = val.strip()
     elif isinstance(spec, EffectSpec):
@@ -436,17 +436,17 @@ def parse_effect(spec: str | EffectSpec | Mapping) -> Effect:
     elif isinstance(spec, Mapping):
         name, given = str(spec.get("name", "")), dict(spec.get("params") or {})
     else:
-        raise WorkbenchError(f"not an effect spec: {spec!r}")
+        raise ParamsError(f"not an effect spec: {spec!r}")
     name = name.strip()
     if name not in REGISTRY:
-        raise WorkbenchError(f"unknown effect {name!r}", hint=f"known: {', '.join(sorted(REGISTRY))}")
+        raise ParamsError(f"unknown effect {name!r}", hint=f"known: {', '.join(sorted(REGISTRY))}")
     cls = REGISTRY[name]
     values: dict[str, float | str] = {}
     for key, raw in given.items():
         canon = _canonical_key(name, key)
         if canon is None:
             known = ", ".join(cls.params)
-            raise WorkbenchError(f"effect {name}: unknown parameter {key!r}", hint=f"parameters: {known}")
+            raise ParamsError(f"effect {name}: unknown parameter {key!r}", hint=f"parameters: {known}")
         values[canon] = _value(name, canon, raw)
     if not values and hasattr(cls, "DEFAULTS"):
         values = dict(cls.DEFAULTS)
@@ -462,11 +462,11 @@ def _check(name: str, values: dict) -> None:
                 "flow_unsteadiness": ["corner_hz"], "electrical_pickup": ["f_hz"]}
     for key in positive.get(name, []):
         if float(values[key]) <= 0:
-            raise WorkbenchError(f"effect {name}: {key} must be positive, got {values[key]}")
+            raise ParamsError(f"effect {name}: {key} must be positive, got {values[key]}")
     if name == "tunnel_blockage" and float(values["epsilon"]) <= -1:
-        raise WorkbenchError(f"effect {name}: epsilon must be > -1")
+        raise ParamsError(f"effect {name}: epsilon must be > -1")
     if name == "flow_unsteadiness" and float(values["rms_fraction"]) < 0:
-        raise WorkbenchError(f"effect {name}: rms_fraction must be >= 0")
+        raise ParamsError(f"effect {name}: rms_fraction must be >= 0")
 
 
 def parse_effects(specs: Iterable[str | EffectSpec | Mapping] | None) -> list[Effect]:
@@ -475,7 +475,7 @@ def parse_effects(specs: Iterable[str | EffectSpec | Mapping] | None) -> list[Ef
     names = [e.name for e in out]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise WorkbenchError(f"effect {dup[0]!r} given more than once", hint="give all its parameters in one spec")
+        raise ParamsError(f"effect {dup[0]!r} given more than once", hint="give all its parameters in one spec")
     return out
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 from workbench.contract.columns import TUNNEL_MOTION_PARAMS
-from workbench.errors import ContractError
+from workbench.errors import ParamsError
 
 THETA_H_MIN_DEG = (10.0, -10.0, -30.0, -50.0)
 THETA_K_MAX_DEG = (-20.0, -40.0, -60.0, -80.0)
@@ -62,10 +62,10 @@ def _complete(p: Mapping[str, float]) -> dict[str, float]:
     missing = [k for k in TUNNEL_MOTION_PARAMS if k not in out]
     unknown = [k for k in out if k not in TUNNEL_MOTION_PARAMS]
     if missing or unknown:
-        raise ContractError(f"grid entry {dict(p)} has missing {missing} / unknown {unknown} parameters",
+        raise ParamsError(f"grid entry {dict(p)} has missing {missing} / unknown {unknown} parameters",
                             hint=f"use {', '.join(TUNNEL_MOTION_PARAMS)}")
     if out["frequency_hz"] <= 0:
-        raise ContractError(f"grid entry {dict(p)}: frequency_hz must be positive")
+        raise ParamsError(f"grid entry {dict(p)}: frequency_hz must be positive")
     return {k: out[k] for k in TUNNEL_MOTION_PARAMS}
 
 
@@ -79,7 +79,7 @@ def resolve_grid(grid: Any) -> list[dict[str, float]]:
         return factorial({k: [float(x) for x in (v if isinstance(v, (list, tuple)) else [v])] for k, v in grid.items()})
     if isinstance(grid, (list, tuple)) and grid and all(isinstance(g, Mapping) for g in grid):
         return [_complete(g) for g in grid]
-    raise ContractError(f"cannot read grid {grid!r}",
+    raise ParamsError(f"cannot read grid {grid!r}",
                         hint="'paper', 'demo', a mapping of parameter lists, or a list of parameter sets")
 
 
@@ -184,6 +184,9 @@ class TunnelSettings:
     description: str = "virtual water tunnel (workbench virtual lab)"
     max_batch_samples: int = 1_500_000
 
+    def __post_init__(self):
+        _check_date(self.date)
+
 
 @dataclass(frozen=True)
 class TowingSettings:
@@ -196,41 +199,29 @@ class TowingSettings:
     date: str = "2025-03-20"
     description: str = "virtual towing tank (workbench virtual lab)"
 
+    def __post_init__(self):
+        _check_date(self.date)
 
-_NESTED = {"loadcell": LoadCellSettings, "motion": ControllerSettings, "clocks": ClockSettings,
-           "carriage": CarriageSettings, "body": BodySettings}
 
-
-def _build(cls, raw: Mapping[str, Any], where: str):
-    names = {f.name: f for f in dataclasses.fields(cls)}
-    kwargs = {}
-    for key, value in raw.items():
-        if key not in names:
-            raise ContractError(f"unknown setting '{key}'", where=where, hint=f"known: {', '.join(names)}")
-        if key in _NESTED and isinstance(value, Mapping):
-            value = _build(_NESTED[key], value, f"{where}.{key}")
-        elif key == "physics":
-            value = dict(value or {})
-        elif key == "date":
-            value = str(value)
-            try:
-                _dt.date.fromisoformat(value)
-            except ValueError:
-                raise ContractError(f"date {value!r} is not YYYY-MM-DD", where=f"{where}.date") from None
-        elif isinstance(value, list):
-            value = tuple(value)
-        kwargs[key] = value
-    return cls(**kwargs)
+def _check_date(value: str) -> None:
+    try:
+        _dt.date.fromisoformat(str(value))
+    except ValueError:
+        raise ValueError(f"date {value!r} is not YYYY-MM-DD") from None
 
 
 def tunnel_settings(raw: Mapping[str, Any] | None = None, where: str = "tunnel") -> TunnelSettings:
-    """TunnelSettings from a YAML section's rig part (other keys are the caller's)."""
-    return _build(TunnelSettings, raw or {}, where)
+    """TunnelSettings from a YAML section's rig part (other keys are the caller's); see workbench.params."""
+    from workbench.params import build
+
+    return build(TunnelSettings, raw, key=where)
 
 
 def towing_settings(raw: Mapping[str, Any] | None = None, where: str = "towing") -> TowingSettings:
-    """TowingSettings from a YAML section's rig part."""
-    return _build(TowingSettings, raw or {}, where)
+    """TowingSettings from a YAML section's rig part; see workbench.params."""
+    from workbench.params import build
+
+    return build(TowingSettings, raw, key=where)
 
 
 def settings_json(s) -> dict:

@@ -26,7 +26,7 @@ from scipy import signal
 
 from workbench.atomic import atomic_dir
 from workbench.contract.columns import TRIGGER_HIGH_S
-from workbench.errors import WorkbenchError
+from workbench.errors import ParamsError
 from workbench.virtual_lab import rig, writers
 from workbench.virtual_lab.settings import FORMS, SCALES, TowingSettings, settings_json, towing_settings
 from workbench.virtual_lab.tunnel import maybe_progress
@@ -125,18 +125,18 @@ def generate_towing(out_dir: str | Path, *, scale: str = "demo", seed: int = 0, 
     """
     out_dir = Path(out_dir)
     if scale not in SCALES:
-        raise WorkbenchError(f"unknown scale {scale!r}", hint=f"one of {', '.join(SCALES)}")
+        raise ParamsError(f"unknown scale {scale!r}", hint=f"one of {', '.join(SCALES)}")
     if form not in FORMS:
-        raise WorkbenchError(f"unknown form {form!r}", hint=f"one of {', '.join(FORMS)}")
+        raise ParamsError(f"unknown form {form!r}", hint=f"one of {', '.join(FORMS)}")
     bad = [h for h in headings if h not in HEADINGS]
     if bad or not headings:
-        raise WorkbenchError(f"unknown heading(s) {bad}", hint=f"use {', '.join(HEADINGS)}")
+        raise ParamsError(f"unknown heading(s) {bad}", hint=f"use {', '.join(HEADINGS)}")
     s = _settings(settings)
     cid = writers.check_target(out_dir, campaign_id)
     sc = SCALES[scale]
     speeds = tuple(float(v) for v in (sc.towing_speeds_mps if speeds is None else speeds))
     if not speeds or any(not math.isfinite(v) or v <= 0 for v in speeds):
-        raise WorkbenchError(f"towing speeds must be positive numbers, got {speeds}")
+        raise ParamsError(f"towing speeds must be positive numbers, got {speeds}")
     plans = plan_tows(speeds, headings, sc.towing_repeats if repeats is None else int(repeats), form)
     calibration = rig.calibration_matrix(s.loadcell)
     records: dict[str, dict] = {}
@@ -174,7 +174,7 @@ def _run(p: TowPlan, s: TowingSettings, seed: int, root: Path, calibration: np.n
     margins = (float(r.uniform(*lc.start_margin_s)), float(r.uniform(*lc.end_margin_s)))
     ramp_len = p.speed_mps**2 / c.accel_mps2
     if ramp_len >= c.usable_length_m:
-        raise WorkbenchError(f"run {p.id}: {p.speed_mps} m/s cannot be reached and stopped within "
+        raise ParamsError(f"run {p.id}: {p.speed_mps} m/s cannot be reached and stopped within "
                              f"{c.usable_length_m} m at {c.accel_mps2} m/s^2", hint="lower the speed or raise accel_mps2")
     steady = min(c.max_steady_s, (c.usable_length_m - ramp_len) / p.speed_mps)
     duration = 2 * p.speed_mps / c.accel_mps2 + steady

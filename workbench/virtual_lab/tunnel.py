@@ -21,7 +21,7 @@ import numpy as np
 
 from workbench.atomic import atomic_dir
 from workbench.contract.columns import TRIGGER_HIGH_S
-from workbench.errors import WorkbenchError
+from workbench.errors import ParamsError
 from workbench.hydro.motion import JointSinusoid, LegMotion
 from workbench.virtual_lab import rig, writers
 from workbench.virtual_lab.effects import Effect, by_stage, parse_effects
@@ -86,6 +86,51 @@ def plan_runs(speeds: Sequence[float], grid: Sequence[Mapping[str, float]], cycl
     return plans
 
 
+def read_plan(path: str | Path, form: str = "csv") -> tuple[dict, list[RunPlan]]:
+    """A planned campaign (``workbench plan-campaign``'s manifest): its head and one RunPlan per run, as given.
+
+    The runs keep their ids, flow speeds, motion parameters and cycles; file entries, if any, are
+    ignored (the virtual lab writes its own). A bad manifest is a one-line error naming the run.
+    """
+    import tomllib
+
+    from workbench.contract.columns import TUNNEL_MOTION_PARAMS, TUNNEL_OPTIONAL_DEFAULTS
+    from workbench.errors import ContractError
+
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+    except FileNotFoundError:
+        raise ContractError("plan not found", path=path) from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ContractError(f"not a TOML campaign manifest ({exc})", path=path) from None
+    if doc.get("schema") != "workbench/campaign@1" or doc.get("facility") != "water_tunnel":
+        raise ContractError("not a water-tunnel campaign manifest (schema workbench/campaign@1, facility "
+                            "water_tunnel)", path=path)
+    runs = doc.get("runs")
+    if not isinstance(runs, list) or not runs:
+        raise ContractError("the plan has no [[runs]]", path=path)
+    plans, seen = [], set()
+    for i, r in enumerate(runs):
+        rid = r.get("id") if isinstance(r, dict) else None
+        if not isinstance(rid, str) or rid in seen:
+            raise ContractError(f"run {i + 1}: missing or repeated id {rid!r}", path=path)
+        seen.add(rid)
+        try:
+            params = {k: float(r.get(k, TUNNEL_OPTIONAL_DEFAULTS.get(k)))
+                      for k in TUNNEL_MOTION_PARAMS}
+            flow, cycles = float(r["flow_speed_mps"]), r["cycles"]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ContractError(f"missing or non-numeric field ({exc})", path=path, run=rid) from None
+        if not isinstance(cycles, int) or cycles < 1 or not math.isfinite(flow) or flow < 0 \
+                or not params["frequency_hz"] > 0 or not all(math.isfinite(v) for v in params.values()):
+            raise ContractError("cycles must be a positive integer, flow speed non-negative, frequency positive",
+                                path=path, run=rid)
+        f = _RUN_FORMS[i % 3] if form == "mixed" else form
+        plans.append(RunPlan(i, rid, flow, params, cycles, f))
+    return doc, plans
+
+
 def ease_time(tau: np.ndarray, cycles_s: float, ease_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The controller's eased clock ``s(tau)`` for the motion, with ``ds/dtau`` and ``d2s/dtau2``.
 
@@ -128,12 +173,9 @@ def prescribed(js: JointSinusoid, t_ctrl: np.ndarray, start_s: float, cycles_s: 
 
 def truth_model(truth: str, physics: Mapping[str, Any], effects: Iterable[Effect]) -> TrueLegModel:
     """The ground truth with the settings' physics overrides and the planted force effects."""
-    try:
-        params = dataclasses.replace(TruthParams(), **{k: tuple(v) if isinstance(v, list) else v
-                                                      for k, v in dict(physics).items()})
-    except TypeError as exc:
-        names = ", ".join(f.name for f in dataclasses.fields(TruthParams))
-        raise WorkbenchError(f"unknown physics setting ({exc})", where="tunnel.physics", hint=f"known: {names}") from None
+    from workbench.params import build
+
+    params = build(TruthParams, physics, key="tunnel.physics")
     model = TrueLegModel(truth, params)
     for e in by_stage(effects, "force"):
         model = model.with_params(**e.force_changes(model.params))
@@ -152,7 +194,8 @@ def generate_tunnel(out_dir: str | Path, *, scale: str = "demo", seed: int = 0, 
                     truth: str = "rich", effects: Iterable = (), campaign_id: str | None = None,
                     flow_speeds: Sequence[float] | None = None, grid: Any = None, cycles: int | None = None,
                     feedback: bool | None = None, bin_faults: bool = False,
-                    settings: TunnelSettings | Mapping | None = None, show_progress: bool = False) -> Path:
+                    settings: TunnelSettings | Mapping | None = None, show_progress: bool = False,
+                    plan: str | Path | None = None) -> Path:
     """Write a water-tunnel campaign folder (data contract v1) plus truth.json; returns the folder.
 
     ``scale`` picks the default grid and cycles ("demo": 48 sets x 5 cycles per speed,
@@ -160,15 +203,17 @@ def generate_tunnel(out_dir: str | Path, *, scale: str = "demo", seed: int = 0, 
     bin, mcap or mixed (all three, run by run). ``truth``: "rich" or "ef". ``effects``: specs
     such as ``"servo_lag:tau_s=0.04"``. ``feedback`` overrides ``[motion] feedback``.
     ``bin_faults``: the first ``.bin`` capture starts mid-frame, holds corrupt and dropped bytes
-    and its device counter wraps around (for ingest tests).
+    and its device counter wraps around (for ingest tests). ``plan``: a planned campaign's manifest
+    (``workbench plan-campaign``): exactly its runs (ids, flow speeds, parameters, cycles) are
+    measured, and ``scale``, ``grid``, ``cycles`` and ``flow_speeds`` are not used.
     """
     out_dir = Path(out_dir)
     if scale not in SCALES:
-        raise WorkbenchError(f"unknown scale {scale!r}", hint=f"one of {', '.join(SCALES)}")
+        raise ParamsError(f"unknown scale {scale!r}", hint=f"one of {', '.join(SCALES)}")
     if form not in FORMS:
-        raise WorkbenchError(f"unknown form {form!r}", hint=f"one of {', '.join(FORMS)}")
+        raise ParamsError(f"unknown form {form!r}", hint=f"one of {', '.join(FORMS)}")
     if truth not in TRUTHS:
-        raise WorkbenchError(f"unknown truth {truth!r}", hint=f"one of {', '.join(TRUTHS)}")
+        raise ParamsError(f"unknown truth {truth!r}", hint=f"one of {', '.join(TRUTHS)}")
     s = _settings(settings)
     if feedback is not None:
         s = dataclasses.replace(s, motion=dataclasses.replace(s.motion, feedback=bool(feedback)))
@@ -178,11 +223,16 @@ def generate_tunnel(out_dir: str | Path, *, scale: str = "demo", seed: int = 0, 
     model = truth_model(truth, s.physics, fx)
     speeds = tuple(float(u) for u in (FLOW_SPEEDS_MPS if flow_speeds is None else flow_speeds))
     if not speeds or any(not math.isfinite(u) or u < 0 for u in speeds):
-        raise WorkbenchError(f"flow speeds must be non-negative numbers, got {speeds}")
+        raise ParamsError(f"flow speeds must be non-negative numbers, got {speeds}")
     n_cycles = sc.cycles if cycles is None else int(cycles)
     if n_cycles <= 0:
-        raise WorkbenchError(f"cycles must be positive, got {n_cycles}")
-    plans = plan_runs(speeds, resolve_grid(sc.grid if grid is None else grid), n_cycles, form)
+        raise ParamsError(f"cycles must be positive, got {n_cycles}")
+    if plan is not None:
+        plan_doc, plans = read_plan(plan, form)
+        s = dataclasses.replace(s, description=f"virtual lab measurement of plan {plan_doc.get('id', '?')} "
+                                f"({Path(plan).name}, {len(plans)} runs)")
+    else:
+        plans = plan_runs(speeds, resolve_grid(sc.grid if grid is None else grid), n_cycles, form)
     first_bin = next((p.index for p in plans if p.form == "bin"), None) if bin_faults else None
     calibration = rig.calibration_matrix(s.loadcell)
     runs_truth: dict[str, dict] = {}
@@ -199,6 +249,7 @@ def generate_tunnel(out_dir: str | Path, *, scale: str = "demo", seed: int = 0, 
         writers.write_json(tmp / "truth.json", {
             "generator": writers.GENERATOR, "kind": "water_tunnel", "campaign_id": cid, "seed": int(seed),
             "scale": scale, "form": form, "truth": model.describe(),
+            **({"plan": str(plan)} if plan is not None else {}),
             "effects": [e.spec().to_json() for e in fx],
             "clock_model": "daq_time_s = daq_offset_s + (1 + daq_drift_ppm * 1e-6) * controller_time_s",
             "loadcell_model": "reading = wrench + bias + drift_per_s * (daq_time_s - first_daq_time_s) + noise",

@@ -253,7 +253,7 @@ def check_target(out_dir: Path, campaign_id: str | None) -> str:
     import re
 
     from workbench.contract.columns import CAMPAIGN_ID_PATTERN
-    from workbench.errors import ContractError, WorkbenchError
+    from workbench.errors import ContractError, OutputError
 
     cid = out_dir.name if campaign_id is None else campaign_id
     if cid != out_dir.name:
@@ -264,7 +264,7 @@ def check_target(out_dir: Path, campaign_id: str | None) -> str:
                             hint="use lower-case letters, digits, '-' and '_'")
     if out_dir.exists():
         if not out_dir.is_dir():
-            raise WorkbenchError("exists and is not a folder", path=out_dir)
+            raise OutputError("exists and is not a folder", path=out_dir)
         if any(out_dir.iterdir()):
             truth = out_dir / "truth.json"
             try:
@@ -272,6 +272,6 @@ def check_target(out_dir: Path, campaign_id: str | None) -> str:
             except (OSError, ValueError, AttributeError):
                 ours = False
             if not ours:
-                raise WorkbenchError("refusing to overwrite a folder the virtual lab did not generate", path=out_dir,
-                                     hint="choose a new folder, or move this one away yourself")
+                raise OutputError("refusing to overwrite a folder the virtual lab did not generate", path=out_dir,
+                                  hint="choose a new folder, or move this one away yourself")
     return cid
