@@ -43,20 +43,27 @@ def suggest(key: str, allowed: Sequence[str]) -> str:
 
 
 def _resolve_file(path: str | Path | None, default: str | Path | None) -> Path | None:
-    """The parameter file to read, or None for built-in defaults (no file given and no default file)."""
+    """The parameter file to read, or None for built-in defaults (no file given and no default file).
+
+    An explicit relative path is taken from the working directory, else from the project root;
+    the default file always from the project root.
+    """
     from workbench.project import project_root
 
-    explicit = path is not None and (default is None or str(path) != str(default))
-    p = Path(path if path is not None else default) if (path is not None or default is not None) else None
-    if p is None:
+    if path is None and default is None:
         return None
+    if path is None:
+        p = Path(default)
+        p = p if p.is_absolute() else project_root() / p
+        return p if p.is_file() else None  # the default file is optional: built-in defaults apply
+    p = Path(path)
     if not p.is_absolute() and not p.exists():
         p = project_root() / p
     if p.is_file():
         return p
-    if explicit:
-        raise ParamsError("parameter file not found", path=p)
-    return None  # the default file is optional: built-in defaults apply
+    if default is not None and str(path) == str(default):
+        return None  # the default, spelled out by argparse
+    raise ParamsError("parameter file not found", path=p)
 
 
 @functools.lru_cache(maxsize=32)

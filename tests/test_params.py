@@ -1,0 +1,222 @@
+"""workbench.params: one loader for pipeline YAML sections, on real YAML files written here."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from typing import Literal, Optional
+
+import pytest
+import yaml
+
+from workbench.cli import main
+from workbench.errors import ParamsError, WorkbenchError
+from workbench.hydro.drag import DragFitParams, PlateauParams
+from workbench.ingest.params import IngestParams
+from workbench.params import build, load_settings, read_section
+from workbench.project import project_root
+
+
+@dataclass(frozen=True)
+class Inner:
+    """A nested settings block."""
+
+    gain: float = 1.0
+    taps: tuple[int, ...] = (1, 2)
+
+
+@dataclass(frozen=True)
+class DemoSettings:
+    """Every field form the loader supports."""
+
+    rate_hz: float = 10.0
+    count: int = 3
+    enabled: bool = True
+    cutoff_hz: Optional[float] = 2.0  # noqa: UP045 (the typing spelling must work too)
+    label: str | None = None
+    mode: Literal["fast", "exact"] = "fast"
+    window_s: tuple[float, float] = (0.5, 1.5)
+    names: list[str] = field(default_factory=list)
+    extra: dict[str, float] = field(default_factory=dict)
+    inner: Inner = field(default_factory=Inner)
+
+    def __post_init__(self):
+        if self.count < 0:
+            raise ValueError("count must not be negative")
+
+
+def _yaml(path, doc) -> str:
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    return str(path)
+
+
+def test_a_full_section_is_coerced_into_nested_frozen_settings(tmp_path):
+    f = _yaml(tmp_path / "p.yaml", {"demo": {
+        "rate_hz": 65, "count": 4, "enabled": False, "cutoff_hz": None, "label": "x", "mode": "exact",
+        "window_s": [1, 2], "names": ["a", "b"], "extra": {"k": 3}, "inner": {"gain": 2, "taps": [3, 4, 5]}}})
+    s = load_settings(DemoSettings, f, "demo")
+    assert s == DemoSettings(rate_hz=65.0, count=4, enabled=False, cutoff_hz=None, label="x", mode="exact",
+                             window_s=(1.0, 2.0), names=["a", "b"], extra={"k": 3.0},
+                             inner=Inner(gain=2.0, taps=(3, 4, 5)))
+    assert isinstance(s.rate_hz, float) and isinstance(s.inner.gain, float) and isinstance(s.window_s, tuple)
+    with pytest.raises(AttributeError):
+        s.rate_hz = 1.0  # frozen
+    # what is not given keeps its default, also inside a nested block
+    part = load_settings(DemoSettings, _yaml(tmp_path / "q.yaml", {"demo": {"inner": {"gain": 5}}}), "demo")
+    assert part == DemoSettings(inner=Inner(gain=5.0))
+
+
+def test_yaml_1_1_exponent_without_dot_is_a_number(tmp_path):
+    f = tmp_path / "e.yaml"
+    f.write_text("demo:\n  rate_hz: 1e-5\n", encoding="utf-8")
+    assert yaml.safe_load(f.read_text())["demo"]["rate_hz"] == "1e-5"  # what PyYAML gives
+    assert load_settings(DemoSettings, str(f), "demo").rate_hz == pytest.approx(1e-5)
+
+
+def test_unknown_nested_key_names_file_key_path_suggestion_and_allowed_keys(tmp_path):
+    f = _yaml(tmp_path / "drag.yaml", {"fit": {"plateau": {"smoth_s": 0.3}}})
+    with pytest.raises(ParamsError) as info:
+        load_settings(DragFitParams, f, "fit")
+    msg = str(info.value)
+    assert "\n" not in msg and msg.startswith(f)
+    assert "fit.plateau.smoth_s" in msg and "did you mean 'smooth_s'?" in msg
+    assert all(name in msg for name in PlateauParams.__dataclass_fields__)
+    assert info.value.key == "fit.plateau.smoth_s" and info.value.path == f
+    # a typo far from every key gets the list without a guess
+    with pytest.raises(ParamsError, match=r"fit\.zzz: unknown setting 'zzz' \(allowed: plateau,") as info:
+        load_settings(DragFitParams, _yaml(tmp_path / "d2.yaml", {"fit": {"zzz": 1}}), "fit")
+    assert "did you mean" not in str(info.value)
+
+
+@pytest.mark.parametrize("doc, key, fault", [
+    ({"count": 2.5}, "demo.count", "must be an integer, got float 2.5"),
+    ({"enabled": "yes"}, "demo.enabled", "must be true or false"),
+    ({"rate_hz": True}, "demo.rate_hz", "must be a number, got true/false"),
+    ({"rate_hz": "fast"}, "demo.rate_hz", "must be a number"),
+    ({"cutoff_hz": "high"}, "demo.cutoff_hz", "must be a number"),
+    ({"window_s": [1, 2, 3]}, "demo.window_s", "must be a list of 2 values, got 3"),
+    ({"window_s": 1.0}, "demo.window_s", "must be a list"),
+    ({"inner": {"taps": [1, "x"]}}, "demo.inner.taps[1]", "must be an integer"),
+    ({"inner": 7}, "demo.inner", "must be a mapping"),
+    ({"extra": [1]}, "demo.extra", "must be a mapping"),
+    ({"mode": "exakt"}, "demo.mode", "must be one of 'fast', 'exact', got 'exakt' (did you mean 'exact'?)"),
+    ({"count": -1}, "demo", "count must not be negative"),
+])
+def test_wrong_types_and_failed_checks_name_the_key(tmp_path, doc, key, fault):
+    f = _yaml(tmp_path / "p.yaml", {"demo": doc})
+    with pytest.raises(ParamsError) as info:
+        load_settings(DemoSettings, f, "demo")
+    assert str(info.value).startswith(f"{f}, {key}: ") and fault in str(info.value)
+
+
+def test_which_file_and_which_section(tmp_path, monkeypatch):
+    monkeypatch.setenv("WORKBENCH_HOME", str(tmp_path))
+    # no --params and no default file: built-in defaults
+    assert load_settings(DragFitParams, None, "fit", default="pipelines/drag.yaml") == DragFitParams()
+    assert load_settings(DragFitParams, "pipelines/drag.yaml", "fit", default="pipelines/drag.yaml") == DragFitParams()
+    # the default file, found under the project root
+    (tmp_path / "pipelines").mkdir()
+    _yaml(tmp_path / "pipelines" / "drag.yaml", {"fit": {"min_speeds": 7}})
+    assert load_settings(DragFitParams, None, "fit", default="pipelines/drag.yaml").min_speeds == 7
+    # an explicit file that is not there is an error, not the defaults
+    with pytest.raises(ParamsError, match="elsewhere.yaml: parameter file not found"):
+        load_settings(DragFitParams, tmp_path / "elsewhere.yaml", "fit", default="pipelines/drag.yaml")
+    # a file without the section: an error naming the sections there (or the defaults, when optional)
+    other = _yaml(tmp_path / "ingest.yaml", {"ingest": {"lowpass_order": 2}})
+    with pytest.raises(ParamsError, match=r"no section 'fit' in parameter file \(sections: ingest\)"):
+        load_settings(DragFitParams, other, "fit")
+    assert load_settings(DragFitParams, other, "fit", required=False) == DragFitParams()
+    with pytest.raises(ParamsError, match="did you mean 'ingest'"):
+        read_section(other, "injest")
+    # a section written as null is empty; a section that is not a mapping is an error
+    assert read_section(_yaml(tmp_path / "n.yaml", {"fit": None}), "fit") == ({}, str(tmp_path / "n.yaml"))
+    with pytest.raises(ParamsError, match="fit: must be a mapping of settings, not list"):
+        read_section(_yaml(tmp_path / "l.yaml", {"fit": [1, 2]}), "fit")
+
+
+def test_dotted_section_and_overrides(tmp_path):
+    f = _yaml(tmp_path / "g.yaml", {"optimize": {"nsga2": {"pop_size": 12}}, "ingest": {"workers": 1}})
+    assert read_section(f, "optimize.nsga2")[0] == {"pop_size": 12}
+    with pytest.raises(ParamsError, match="no section 'optimize.nsgaa'"):
+        read_section(f, "optimize.nsgaa")
+    # CLI flags on top; a flag left at None keeps the file's value
+    assert load_settings(IngestParams, f, "ingest", overrides={"workers": 2}).workers == 2
+    assert load_settings(IngestParams, f, "ingest", overrides={"workers": None}).workers == 1
+
+
+def test_not_yaml_names_the_line(tmp_path):
+    f = tmp_path / "broken.yaml"
+    f.write_text("fit:\n  min_r2: 0.9\n  plateau: [1, 2\n", encoding="utf-8")
+    with pytest.raises(ParamsError, match=r"broken\.yaml, line \d+: not valid YAML"):
+        read_section(str(f), "fit")
+
+
+def test_build_accepts_a_ready_instance_and_refuses_a_non_mapping():
+    s = DragFitParams(min_speeds=3)
+    assert build(DragFitParams, s, key="fit") is s
+    with pytest.raises(ParamsError, match="fit: must be a mapping of settings, not str"):
+        build(DragFitParams, "sem", key="fit")
+
+
+def _repository_sections():
+    from workbench.gait.run import NSGA2Settings
+    from workbench.signals.interpolation import InterpolationParams
+    from workbench.trials.params import ScoringParams
+
+    return [(IngestParams, "pipelines/ingest.yaml", "ingest"),
+            (InterpolationParams, "pipelines/ingest.yaml", "interpolate"),
+            (DragFitParams, "pipelines/drag.yaml", "fit"),
+            (ScoringParams, "pipelines/trials.yaml", "scoring"),
+            (NSGA2Settings, "pipelines/gait.yaml", "optimize.nsga2")]
+
+
+def _same(value, raw) -> bool:
+    if hasattr(value, "__dataclass_fields__"):
+        return all(_same(getattr(value, k), v) for k, v in raw.items())
+    if isinstance(value, (tuple, list)):
+        return list(value) == list(raw)
+    return value == raw
+
+
+@pytest.mark.parametrize("cls, file, section", _repository_sections(), ids=lambda x: getattr(x, "__name__", x))
+def test_the_repository_parameter_files_load_and_every_value_arrives(cls, file, section):
+    path = project_root() / file
+    raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    for part in section.split("."):
+        raw = raw[part]
+    s = load_settings(cls, path, section)
+    assert raw and all(_same(getattr(s, k), v) for k, v in raw.items())
+
+
+@pytest.mark.parametrize("argv", [
+    ["fit-drag", "{tmp}/no-campaign", "--out", "{tmp}/out", "--params", "{bad}"],
+    ["interpolate", "{tmp}/none.parquet", "--out", "{tmp}/out.parquet", "--params", "{bad}"],
+    ["ingest", "{tmp}/no-campaign", "--out", "{tmp}/out.parquet", "--params", "{bad}"],
+    ["score-trials", "{tmp}/no-trials", "--out", "{tmp}/out", "--params", "{bad}"],
+])
+def test_a_typo_in_a_params_file_is_one_line_and_status_2(tmp_path, capsys, argv):
+    bad = _yaml(tmp_path / "bad.yaml", {
+        "fit": {"plateau": {"setle_s": 0.5}}, "interpolate": {"speed_mps": [0.1]},
+        "ingest": {"lowpass_cutof_hz": 5.0}, "scoring": {"sat_minn": 3}})
+    argv = [a.format(tmp=tmp_path, bad=bad) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: {bad}, ") and "\n" not in err and "unknown setting" in err
+    assert "did you mean" in err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "out.parquet").exists()
+
+
+def test_the_real_command_prints_one_line_and_exits_2(tmp_path):
+    bad = _yaml(tmp_path / "bad.yaml", {"fit": {"weighting": "semm"}})
+    proc = subprocess.run([sys.executable, "-m", "workbench", "fit-drag", str(tmp_path / "c"), "--out",
+                           str(tmp_path / "o"), "--params", bad], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (f"error: {bad}, fit.weighting: must be one of 'sem', 'none', got 'semm' "
+                                   "(did you mean 'sem'?)")
+
+
+def test_params_error_is_a_workbench_error_but_not_a_contract_error():
+    from workbench.errors import ContractError
+
+    assert issubclass(ParamsError, WorkbenchError) and not issubclass(ParamsError, ContractError)
