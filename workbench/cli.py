@@ -31,6 +31,8 @@ VERB_MODULES = (
     "sensitivity",
     "score_trials",
     "diagnose",
+    "train_ensemble",
+    "plan_campaign",
     "report",
     "ui",
 )

@@ -1,0 +1,207 @@
+"""A deep ensemble of the FED-LSTM: K members trained through ``train(cfg)`` with different seeds.
+
+The members share the data and the split (``data.split.seed`` is not touched) and differ in their
+initialisation and window draws (``trainer.seed``). The ensemble predicts the mean of the members
+and, per channel, a 90 % interval of a *reading*::
+
+    mean  = mean_k f_k(x)
+    var   = scale_c^2 * (var_k f_k(x) + noise_c)
+
+``noise_c`` is the channel's residual noise (what the members' mean misses on the validation split
+beyond the members' own spread), and ``scale_c`` a per-channel calibration factor fitted on the
+validation split (the 90 % quantile of the standardised residuals over 1.645), so the interval
+covers 90 % of validation readings. The test split is never used to fit anything: the coverage
+on it, before (scale 1) and after calibration, is what ``ensemble.json`` reports.
+
+The folder (``workbench train-ensemble``, or :func:`train_ensemble`)::
+
+    ENSEMBLE_DIR/ensemble.json        schema, members, noise, scale, calibration report, costs
+    ENSEMBLE_DIR/member-00/ ...       one model folder per member (model.json, weights.pt)
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from workbench.contract.columns import WRENCH_CHANNELS
+from workbench.errors import ModelError
+
+SCHEMA = "workbench/leg-model-ensemble@1"
+#: two-sided 90 % quantile of the standard normal
+Z90 = 1.6448536269514722
+
+
+@dataclass
+class Ensemble:
+    """Members (LearnedLegModel), per-channel noise variance and calibration scale."""
+
+    members: list
+    noise_var: np.ndarray
+    scale: np.ndarray
+    record: dict
+
+    @property
+    def seq_len(self) -> int:
+        """Longest member window."""
+        return max(int(m.seq_len) for m in self.members)
+
+    def member_predictions(self, motion) -> np.ndarray:
+        """(K, B, T, 6) every member's wrench for the motion batch."""
+        return np.stack([np.asarray(m.wrench(motion), dtype=np.float64) for m in self.members])
+
+    def predict(self, motion) -> tuple[np.ndarray, np.ndarray]:
+        """Mean (B, T, 6) and the variance of a reading (B, T, 6): calibrated spread plus noise."""
+        preds = self.member_predictions(motion)
+        return preds.mean(0), self.reading_var(preds.var(0, ddof=1))
+
+    def reading_var(self, model_var: np.ndarray) -> np.ndarray:
+        """Variance of a reading from the members' variance (per channel: scale^2 (var + noise))."""
+        return self.scale**2 * (model_var + self.noise_var)
+
+    def interval(self, motion, level: float = 0.9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Mean, lower and upper bound of the central ``level`` interval of a reading (Gaussian)."""
+        from statistics import NormalDist
+
+        z = NormalDist().inv_cdf(0.5 + level / 2)
+        mean, var = self.predict(motion)
+        sd = np.sqrt(var)
+        return mean, mean - z * sd, mean + z * sd
+
+
+def load_ensemble(folder: str | Path) -> Ensemble:
+    """Read an ensemble folder written by :func:`train_ensemble`."""
+    from workbench.learn.legmodel import load_model
+
+    folder = Path(folder)
+    path = folder / "ensemble.json"
+    if not path.is_file():
+        raise ModelError("no ensemble.json: not an ensemble folder (workbench train-ensemble writes one)", path=folder)
+    try:
+        rec = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ModelError(f"ensemble.json is not JSON ({exc.msg})", path=path) from exc
+    if rec.get("schema") != SCHEMA:
+        raise ModelError(f"unknown ensemble schema {rec.get('schema')!r}", path=path, hint=f"expected {SCHEMA}")
+    try:
+        members = [load_model(folder / m["dir"]) for m in rec["members"]]
+        noise = np.array([rec["noise_var"][c] for c in WRENCH_CHANNELS], float)
+        scale = np.array([rec["scale"][c] for c in WRENCH_CHANNELS], float)
+    except (KeyError, TypeError) as exc:
+        raise ModelError(f"ensemble.json is incomplete ({type(exc).__name__}: {exc})", path=path) from None
+    if len(members) < 2:
+        raise ModelError("an ensemble needs at least two members", path=path)
+    return Ensemble(members, noise, scale, rec)
+
+
+def _split_arrays(prepared, members: Sequence, name: str, skip: int) -> tuple[np.ndarray, np.ndarray]:
+    """Stacked member predictions (K, N, 6) and readings (N, 6) on the measured runs of one split."""
+    from workbench.learn.metrics import predict_runs
+
+    runs = prepared.runs(name)
+    table = prepared.table
+    ys = [table.y[table.run_slice(int(r))].astype(np.float64)[skip:] for r in runs]
+    preds = []
+    for m in members:
+        preds.append(np.concatenate([p[skip:] for p in predict_runs(table, runs, m)]) if len(runs) else
+                     np.zeros((0, 6)))
+    return np.stack(preds), (np.concatenate(ys) if ys else np.zeros((0, 6)))
+
+
+def calibrate(val_preds: np.ndarray, val_y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel noise variance and 90 % scale fitted on the validation split (never on test).
+
+    ``noise_c = max(mean (y - mean_k)^2 - mean var_k, 1 % of the first)``; ``scale_c`` makes the
+    90 % Gaussian interval cover 90 % of validation readings.
+    """
+    mu, var = val_preds.mean(0), val_preds.var(0, ddof=1)
+    mse = ((val_y - mu) ** 2).mean(0)
+    noise = np.maximum(mse - var.mean(0), 0.01 * mse)
+    z = np.abs(val_y - mu) / np.sqrt(var + noise)
+    scale = np.quantile(z, 0.9, axis=0) / Z90
+    return noise, scale
+
+
+def coverage(preds: np.ndarray, y: np.ndarray, noise: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Fraction of readings (per channel) inside the 90 % interval."""
+    mu, var = preds.mean(0), preds.var(0, ddof=1)
+    sd = scale * np.sqrt(var + noise)
+    return (np.abs(y - mu) <= Z90 * sd).mean(0)
+
+
+def _per_channel(x) -> dict:
+    return {c: float(v) for c, v in zip(WRENCH_CHANNELS, x, strict=True)}
+
+
+def train_ensemble(cfg, out_dir: str | Path, *, members: int = 5, first_seed: int = 0,
+                   report: Callable[[str], None] | None = None) -> dict:
+    """Train ``members`` FED-LSTMs through :func:`workbench.learn.train.train` and write the ensemble folder.
+
+    ``cfg`` is the :class:`LearnConfig` every member uses (its ``trainer.seed`` is replaced by
+    ``first_seed + k``; its ``model_dir`` is ignored). The data are read and split once. Returns
+    the ``ensemble.json`` record (calibration before/after, member and ensemble test MSE, costs).
+    """
+    from workbench.atomic import atomic_dir
+    from workbench.errors import ContractError
+    from workbench.learn.datamodule import prepare_data
+    from workbench.learn.legmodel import save_model
+    from workbench.learn.train import train
+    from workbench.learn.windows import read_table
+
+    if members < 2:
+        raise ContractError(f"an ensemble needs at least 2 members, got {members}")
+    say = report or (lambda s: None)
+    t0 = time.perf_counter()
+    prepared = prepare_data(read_table(cfg.data.paths), cfg.data)
+    models, member_rec = [], []
+    for k in range(members):
+        seed = first_seed + k
+        cfg_k = cfg.with_overrides({"trainer.seed": seed, "model_dir": None})
+        t_k = time.perf_counter()
+        metrics, objs = train(cfg_k, prepared=prepared, score_test=False, log_model=False, kind="ensemble",
+                              extra_tags={"ensemble_member": str(k)}, report=report)
+        models.append(objs["model"])
+        member_rec.append({"dir": f"member-{k:02d}", "seed": seed, "best_val_loss": metrics["best_val_loss"],
+                           "epochs": metrics["epochs"], "stop_reason": metrics["stop_reason"],
+                           "train_s": time.perf_counter() - t_k, **({"run_id": objs["run_id"]} if "run_id" in objs
+                                                                     else {})})
+        say(f"member {k + 1}/{members} (seed {seed}): best val loss {metrics['best_val_loss']:.4f}, "
+            f"{member_rec[-1]['train_s']:.0f} s")
+    t_cal = time.perf_counter()
+    skip = max(m.seq_len for m in models) - 1
+    val_p, val_y = _split_arrays(prepared, models, "val", skip)
+    test_p, test_y = _split_arrays(prepared, models, "test", skip)
+    noise, scale = calibrate(val_p, val_y)
+    ones = np.ones(6)
+    rec: dict = {
+        "schema": SCHEMA, "members": member_rec, "channels": list(WRENCH_CHANNELS),
+        "noise_var": _per_channel(noise), "scale": _per_channel(scale),
+        "interval": "mean +- 1.645 * scale * sqrt(members' variance + noise_var), per channel",
+        "calibration": {
+            "level": 0.9, "fitted_on": "val", "val_ticks": int(len(val_y)), "test_ticks": int(len(test_y)),
+            "coverage_val_before": _per_channel(coverage(val_p, val_y, noise, ones)),
+            "coverage_val_after": _per_channel(coverage(val_p, val_y, noise, scale)),
+        },
+        "config": cfg.to_dict(), "split": prepared.split.to_dict(),
+    }
+    if len(test_y):
+        mu = test_p.mean(0)
+        rec["calibration"]["coverage_test_before"] = _per_channel(coverage(test_p, test_y, noise, ones))
+        rec["calibration"]["coverage_test_after"] = _per_channel(coverage(test_p, test_y, noise, scale))
+        rec["test_mse"] = {"ensemble_mean": _per_channel(((test_y - mu) ** 2).mean(0)),
+                           "members": [_per_channel(((test_y - p) ** 2).mean(0)) for p in test_p]}
+        rec["test_mean_variance"] = {"members": _per_channel(test_p.var(0, ddof=1).mean(0)),
+                                     "noise": _per_channel(noise)}
+    rec["cost_s"] = {"train": sum(m["train_s"] for m in member_rec), "calibrate": time.perf_counter() - t_cal,
+                     "total": time.perf_counter() - t0}
+    with atomic_dir(out_dir, verb="train-ensemble") as tmp:
+        for m, r in zip(models, member_rec, strict=True):
+            (Path(tmp) / r["dir"]).mkdir()
+            save_model(m, Path(tmp) / r["dir"])
+        (Path(tmp) / "ensemble.json").write_text(json.dumps(rec, indent=2) + "\n", encoding="utf-8")
+    return rec

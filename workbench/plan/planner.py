@@ -1,0 +1,204 @@
+"""``workbench plan-campaign``: propose the next tunnel campaign and write it as a manifest with no files yet.
+
+Pieces: the FED-LSTM ensemble (:mod:`workbench.learn.ensemble`), the operating region of the
+retained gaits (:mod:`workbench.plan.region`), candidate runs within the rig's ranges, the runs a
+diagnosis asks for (:mod:`workbench.plan.diagnosis_runs`) and the integrated-variance greedy
+batch (:mod:`workbench.plan.acquisition`). Output: ``PLAN.toml`` (contract v1 campaign manifest,
+runs with motion parameters, flow speed and cycles, no file entries) and ``plan.md`` beside it.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from workbench.contract.columns import WRENCH_CHANNELS
+from workbench.errors import ContractError
+from workbench.plan.acquisition import Candidate, RigRanges
+
+PLAN_NOTE = "planned by workbench plan-campaign: runs to measure, files pending"
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    """The knobs of pipelines/plan.yaml's ``plan`` section."""
+
+    n_candidates: int = 160
+    seed: int = 0
+    lengthscale: float = 0.5
+    points_per_run: int = 6
+    region_points_per_cycle: int = 8
+    region_cycles: float = 1.0
+    swim_s: float = 12.0
+    max_rank: int | None = None
+    ranges: RigRanges = field(default_factory=RigRanges)
+    loadcell: Mapping[str, Any] = field(default_factory=lambda: {"model": "DMI D6095XA", "rate_hz": 500.0,
+                                                                 "full_scale": [50.0, 50.0, 50.0, 2.0, 2.0, 2.0]})
+    motion: Mapping[str, Any] = field(default_factory=lambda: {"rate_hz": 65.0, "feedback": False})
+
+    @classmethod
+    def from_dict(cls, doc: Mapping | None) -> "PlanSettings":
+        """From the ``plan`` section (unknown keys refused)."""
+        doc = dict(doc or {})
+        unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ContractError(f"unknown plan setting(s) {unknown}", where="plan",
+                                hint=f"known: {', '.join(cls.__dataclass_fields__)}")
+        if "ranges" in doc:
+            doc["ranges"] = RigRanges.from_dict(doc["ranges"])
+        return cls(**doc)
+
+
+def _plan_id(out: Path, given: str | None) -> str:
+    from workbench.contract.columns import CAMPAIGN_ID_PATTERN
+
+    cid = given or re.sub(r"[^a-z0-9_-]", "-", out.stem.lower()).strip("-") or "next-campaign"
+    if not re.match(CAMPAIGN_ID_PATTERN, cid):
+        raise ContractError(f"campaign id {cid!r} is not valid {CAMPAIGN_ID_PATTERN}", hint="pass --id")
+    return cid
+
+
+def plan_campaign(ensemble_dir: str | Path, gait_files: Sequence[str | Path], n_runs: int, out: str | Path, *,
+                  diagnosis: str | Path | None = None, settings: PlanSettings | None = None,
+                  campaign_id: str | None = None, date: str | None = None, robot_yaml: str | Path = "pipelines/robot.yaml",
+                  drag_json: str | Path | None = None, write: bool = True) -> dict:
+    """Propose ``n_runs`` runs (plus the diagnosis's) and write ``out`` and ``plan.md`` beside it.
+
+    Returns the plan record (runs with their reasons and gains, region variance before/after,
+    tunnel time, costs).
+    """
+    from workbench.learn.ensemble import load_ensemble
+    from workbench.plan.acquisition import IntegratedVariance, greedy_select, random_candidates
+    from workbench.plan.region import operating_region, read_gaits
+
+    if n_runs < 0:
+        raise ContractError(f"--n-runs must be >= 0, got {n_runs}")
+    s = settings or PlanSettings()
+    out = Path(out)
+    cid = _plan_id(out, campaign_id)
+    t0 = time.perf_counter()
+    ens = load_ensemble(ensemble_dir)
+    region = operating_region(gait_files, robot_yaml=robot_yaml, drag_json=drag_json, duration_s=s.swim_s,
+                              cycles=s.region_cycles, points_per_cycle=s.region_points_per_cycle, max_rank=s.max_rank)
+    t_region = time.perf_counter()
+    cands = random_candidates(s.ranges, s.n_candidates, s.seed)
+    forced: list[int] = []
+    pairs: list = []
+    if diagnosis is not None:
+        from workbench.plan.diagnosis_runs import (
+            ambiguous_pairs,
+            diagnosis_runs,
+            read_diagnosis,
+            region_stroke,
+        )
+
+        doc = read_diagnosis(diagnosis)
+        pairs = ambiguous_pairs(doc)
+        extra = diagnosis_runs(doc, s.ranges, region_stroke(read_gaits(gait_files, s.max_rank)[0], s.ranges))
+        forced = list(range(len(cands), len(cands) + len(extra)))
+        cands = cands + extra
+    iv = IntegratedVariance(ens, region, cands, lengthscale=s.lengthscale, points_per_run=s.points_per_run)
+    sel = greedy_select(iv, n_runs + len(forced), s.ranges, forced)
+    t_sel = time.perf_counter()
+    runs = _ordered_runs(cands, sel, s.ranges)
+    record = {
+        "campaign_id": cid, "runs": runs, "n_runs": len(runs), "n_diagnosis_runs": len(forced),
+        "ambiguous_pairs": [list(p) for p in pairs],
+        "tunnel_s": sum(r["tunnel_s"] for r in runs),
+        "region": region.summary(), "region_var_before": sel.region_var_before,
+        "region_var_after": sel.region_var_after, "total_before": sel.total_before, "total_after": sel.total_after,
+        "ensemble": {"dir": str(ensemble_dir), "members": len(ens.members),
+                     "coverage_test_after": ens.record.get("calibration", {}).get("coverage_test_after")},
+        "settings": {"n_candidates": s.n_candidates, "lengthscale": s.lengthscale, "points_per_run": s.points_per_run,
+                     "setup_s": s.ranges.setup_s, "cycles": s.ranges.cycles, "seed": s.seed},
+        "cost_s": {"region": t_region - t0, "select": t_sel - t_region, "total": t_sel - t0},
+    }
+    if write:
+        write_plan(out, record, s, date)
+    return record
+
+
+def _ordered_runs(cands: Sequence[Candidate], sel, ranges: RigRanges) -> list[dict]:
+    """Chosen runs with reasons, ordered by flow speed (one flow change per speed), ids p001, p002, ..."""
+    total = max(sel.total_before, 1e-30)
+    picked = []
+    for rank, (j, g, sec) in enumerate(zip(sel.chosen, sel.gains, sel.seconds, strict=True)):
+        c = cands[j]
+        why = c.notes[0] if c.notes else "largest drop of the region-weighted model variance per tunnel second"
+        picked.append({"pick": rank + 1, "flow_speed_mps": c.flow_speed_mps, "params": dict(c.params),
+                       "cycles": c.cycles, "tunnel_s": sec, "gain": g, "gain_share": g / total, "why": why,
+                       "kind": c.reason})
+    picked.sort(key=lambda r: (r["flow_speed_mps"], r["pick"]))
+    for i, r in enumerate(picked):
+        r["id"] = f"p{i + 1:03d}"
+    return picked
+
+
+def manifest_text(record: dict, s: PlanSettings, date: str | None) -> str:
+    """The contract-v1 campaign.toml of the plan: runs with parameters, flow speed and cycles, no files."""
+    from workbench.virtual_lab.writers import manifest_text as toml_text
+
+    day = date or _dt.date.today().isoformat()
+    head = {"schema": "workbench/campaign@1", "id": record["campaign_id"], "facility": "water_tunnel", "date": day,
+            "description": f"{PLAN_NOTE} ({record['n_runs']} runs, {record['tunnel_s'] / 60:.1f} tunnel minutes); "
+                           "see plan.md"}
+    tables = {"loadcell": dict(s.loadcell), "motion": dict(s.motion)}
+    runs = [{"id": r["id"], "flow_speed_mps": float(r["flow_speed_mps"]), **{k: float(v) for k, v in r["params"].items()},
+             "cycles": int(r["cycles"])} for r in record["runs"]]
+    lines = ["# A PLAN: no run has been measured yet, so no run names its files (loadcell/motion or mcap).",
+             "# Measure each run as given (the rig's controller, or `workbench virtual-lab tunnel DIR --plan THIS`),",
+             "# then add the file entries per run and `workbench campaign add DIR`. Why each run: plan.md.", ""]
+    return "\n".join(lines) + toml_text(head, tables, runs)
+
+
+def plan_markdown(record: dict, out_name: str) -> str:
+    """plan.md: why each run, its expected gain, the tunnel time."""
+    rs = record["runs"]
+    lines = [f"# Plan {record['campaign_id']}: {len(rs)} runs, {record['tunnel_s'] / 60:.1f} tunnel minutes", "",
+             f"Manifest: `{out_name}` (contract v1, files pending). Measure the runs in this order (one flow change "
+             "per speed).", "",
+             "Method: the FED-LSTM ensemble's variance at the states the retained gaits put the legs in (the "
+             "operating region), reduced run by run (greedy integrated posterior variance over the ensemble, "
+             "localised in state space); each pick maximises the variance it removes per second of tunnel time.", "",
+             f"Region: {record['region']['legs']} legs of the retained gaits ({', '.join(record['region']['gait_files'])}), "
+             f"{record['region']['points']} points; leg flow {record['region']['flow_speed_mps'][0]:.3f} to "
+             f"{record['region']['flow_speed_mps'][1]:.3f} m/s.", "",
+             f"Region-weighted model variance (noise units, all channels): {record['total_before']:.3g} now, "
+             f"{record['total_after']:.3g} expected after this campaign "
+             f"({100 * (1 - record['total_after'] / max(record['total_before'], 1e-30)):.0f} % less).", "",
+             "| id | flow m/s | theta_h_min | theta_k_max | f Hz | phi rad | cycles | tunnel s | expected gain | why |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rs:
+        p = r["params"]
+        lines.append(f"| {r['id']} | {r['flow_speed_mps']:.2f} | {p['theta_h_min_deg']:g} | {p['theta_k_max_deg']:g} | "
+                     f"{p['frequency_hz']:g} | {p['phi_rad']:.3g} | {r['cycles']} | {r['tunnel_s']:.0f} | "
+                     f"{100 * r['gain_share']:.1f} % (pick {r['pick']}) | {r['why']} |")
+    lines += ["", "Expected gain: share of today's region-weighted variance the run removes given the runs picked "
+              "before it. Tunnel time per run: cycles / frequency plus "
+              f"{record['settings']['setup_s']:g} s setup.", "", "Region variance per channel (calibrated members' "
+              "variance, physical units): before -> after", ""]
+    for c in WRENCH_CHANNELS:
+        lines.append(f"- {c}: {record['region_var_before'][c]:.3g} -> {record['region_var_after'][c]:.3g}")
+    if record["ambiguous_pairs"]:
+        lines += ["", "Diagnosis: ambiguous pairs " + "; ".join(" vs ".join(p) for p in record["ambiguous_pairs"])
+                  + f" -> {record['n_diagnosis_runs']} run(s) picked first."]
+    cov = record["ensemble"].get("coverage_test_after")
+    if cov:
+        lines += ["", "Ensemble 90 % interval coverage on held-out test readings: "
+                  + ", ".join(f"{c} {100 * v:.0f} %" for c, v in cov.items())]
+    return "\n".join(lines) + "\n"
+
+
+def write_plan(out: Path, record: dict, s: PlanSettings, date: str | None) -> None:
+    """plan.md, then the manifest (each written atomically; the manifest last)."""
+    from workbench.atomic import check_not_raw, write_text
+
+    check_not_raw(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_text(out.with_name("plan.md") if out.name != "plan.md" else out.with_suffix(".report.md"),
+               plan_markdown(record, out.name))
+    write_text(out, manifest_text(record, s, date))
