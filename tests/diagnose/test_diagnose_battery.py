@@ -17,7 +17,7 @@ import pytest
 
 pytestmark = pytest.mark.slow
 
-battery = pytest.importorskip("battery")
+import battery  # noqa: E402  (tests/diagnose/battery.py: a broken import must fail, not skip)
 
 
 @pytest.fixture(scope="module")

@@ -11,9 +11,8 @@ import pytest
 from workbench.contract.columns import WRENCH_CHANNELS
 from workbench.ingest import ingest_campaign
 from workbench.signals.interpolation import interpolate_flow_speeds
-
-vl_tunnel = pytest.importorskip("workbench.virtual_lab.tunnel")
-vl_towing = pytest.importorskip("workbench.virtual_lab.towing")
+from workbench.virtual_lab import towing as vl_towing
+from workbench.virtual_lab import tunnel as vl_tunnel
 
 GRID = [{"theta_h_min_deg": 10.0, "theta_k_max_deg": -20.0, "frequency_hz": 0.5, "phi_rad": 1.0472},
         {"theta_h_min_deg": -30.0, "theta_k_max_deg": -60.0, "frequency_hz": 0.3, "phi_rad": 2.0}]
