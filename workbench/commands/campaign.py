@@ -54,6 +54,11 @@ def _validate(folder: Path):
     if result.errors:
         info(f"{folder}: {len(result.errors)} violation(s)"
              + (f" in {len(result.bad_runs)} run(s): {', '.join(result.bad_runs)}" if result.bad_runs else ""))
+        pending = {getattr(e, "run", None) for e in result.errors if "file (or 'mcap')" in getattr(e, "fault", "")}
+        if camp is not None and camp.runs and pending >= {r.id for r in camp.runs}:
+            info("no run names its files: a planned campaign (workbench plan-campaign), files pending. Measure the "
+                 "runs (the rig, or `workbench virtual-lab tunnel DIR --plan campaign.toml`), add each run's file "
+                 "entries, then validate again")
     else:
         camp = result.campaign
         info(f"{folder}: valid ({camp.facility}, {len(camp.runs)} runs checked)")
