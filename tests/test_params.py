@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal, Optional
 
 import pytest
@@ -15,7 +16,8 @@ from workbench.errors import ParamsError, WorkbenchError
 from workbench.hydro.drag import DragFitParams, PlateauParams
 from workbench.ingest.params import IngestParams
 from workbench.params import build, load_settings, read_section
-from workbench.project import project_root
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 @dataclass(frozen=True)
@@ -181,7 +183,7 @@ def _same(value, raw) -> bool:
 
 @pytest.mark.parametrize("cls, file, section", _repository_sections(), ids=lambda x: getattr(x, "__name__", x))
 def test_the_repository_parameter_files_load_and_every_value_arrives(cls, file, section):
-    path = project_root() / file
+    path = REPO / file
     raw = yaml.safe_load(path.read_text(encoding="utf-8"))
     for part in section.split("."):
         raw = raw[part]

@@ -32,7 +32,7 @@ from workbench.errors import ParamsError, WorkbenchError
 
 T = TypeVar("T")
 
-__all__ = ["build", "load_settings", "read_section", "suggest"]
+__all__ = ["build", "load_settings", "read_document", "read_section", "suggest"]
 
 
 def suggest(key: str, allowed: Sequence[str]) -> str:
@@ -80,6 +80,14 @@ def _load_yaml(path: str, mtime: float, size: int) -> Any:
         raise ParamsError(f"not valid YAML: {problem}", path=path, where=where) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ParamsError(f"cannot read parameter file: {exc}", path=path) from None
+
+
+def read_document(path: str | Path) -> Any:
+    """A whole parameter file, parsed (an empty file: ``{}``); a missing file or bad YAML is a ParamsError."""
+    p = _resolve_file(path, None)
+    st = p.stat()
+    doc = _load_yaml(str(p), st.st_mtime, st.st_size)
+    return {} if doc is None else doc
 
 
 def read_section(path: str | Path | None, section: str, *, default: str | Path | None = None,

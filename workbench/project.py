@@ -9,7 +9,6 @@ given on the command line or in ``MLFLOW_TRACKING_URI`` (a shared server) takes 
 from __future__ import annotations
 
 import os
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -62,26 +61,21 @@ def setup_mlflow(tracking_uri: str | None = None, experiment: str | None = None)
     return setup(tracking_uri, experiment)
 
 
-@lru_cache(maxsize=32)
-def _load_yaml(path: str, mtime: float) -> dict:
-    import yaml
-
-    with open(path, encoding="utf-8") as fh:
-        return yaml.safe_load(fh) or {}
-
-
 def load_params(path: str | Path, section: str | None = None) -> Any:
-    """Load a pipeline parameter file (YAML), optionally one top-level section of it."""
-    p = Path(path)
-    if not p.is_absolute() and not p.exists():
-        p = project_root() / p
-    if not p.is_file():
-        raise ParamsError("parameter file not found", path=p)
-    doc = _load_yaml(str(p), p.stat().st_mtime)
+    """A pipeline parameter file (YAML), or one top-level section of it, as parsed (see workbench.params).
+
+    A relative path is taken from the working directory, else from the project root. A missing
+    file, bad YAML or a missing section is a :class:`~workbench.errors.ParamsError`.
+    """
+    from workbench.params import read_document, suggest
+
+    doc = read_document(path)
     if section is None:
         return doc
-    if section not in doc:
-        raise ParamsError(f"no section '{section}' in parameter file", path=p)
+    if not isinstance(doc, dict) or section not in doc:
+        sections = [str(k) for k in doc] if isinstance(doc, dict) else []
+        raise ParamsError(f"no section '{section}' in parameter file", path=path,
+                          hint=suggest(section, sections).replace("allowed:", "sections:"))
     return doc[section]
 
 
