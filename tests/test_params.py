@@ -222,3 +222,27 @@ def test_params_error_is_a_workbench_error_but_not_a_contract_error():
     from workbench.errors import ContractError
 
     assert issubclass(ParamsError, WorkbenchError) and not issubclass(ParamsError, ContractError)
+
+
+def test_virtual_lab_sections_split_into_campaign_and_rig_settings(tmp_path, capsys):
+    from workbench.virtual_lab.settings import TowingSettings, TunnelSettings, campaign_and_rig
+
+    doc = yaml.safe_load((REPO / "pipelines" / "virtual_lab.yaml").read_text(encoding="utf-8"))
+    for key, rig_cls in (("tunnel", TunnelSettings), ("towing", TowingSettings)):
+        campaign, rig = campaign_and_rig(doc[key], key, "virtual_lab.yaml")
+        assert isinstance(rig, rig_cls) and campaign.seed == doc[key]["seed"] and rig.date == str(doc[key]["date"])
+    camp, rig = campaign_and_rig(doc["tunnel"], "tunnel")
+    assert camp.flow_speeds_mps == tuple(doc["tunnel"]["flow_speeds_mps"])
+    assert rig.loadcell.full_scale == tuple(doc["tunnel"]["loadcell"]["full_scale"])
+    with pytest.raises(ParamsError, match=r"tunnel\.sed: unknown setting 'sed' \(did you mean 'seed'\? allowed: "
+                                          r"scale, seed, .*loadcell, motion"):
+        campaign_and_rig({"sed": 3}, "tunnel")
+    with pytest.raises(ParamsError, match=r"towing\.seed: must be an integer, got str 'zero'"):
+        campaign_and_rig({"seed": "zero"}, "towing")
+    bad = _yaml(tmp_path / "vl.yaml", {"tunnel": {"motion": {"rest_befor_s": 1.0}}})
+    assert main(["virtual-lab", "tunnel", str(tmp_path / "t"), "--params", bad]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"error: {bad}, tunnel.motion.rest_befor_s: unknown setting 'rest_befor_s' (did you mean "
+                   "'rest_before_s'? allowed: rate_hz, feedback, rest_before_s, rest_after_s, ease_s, "
+                   "feedback_noise_deg, feedback_resolution_deg)")
+    assert not (tmp_path / "t").exists()

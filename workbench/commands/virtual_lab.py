@@ -33,12 +33,6 @@ TOWING_EXAMPLES = """\
   workbench virtual-lab towing datasets/raw/tow3 --speeds 0.1 0.2 0.3 --seed 4
 """
 
-#: keys of a YAML section that are not rig settings
-_TUNNEL_KEYS = ("scale", "seed", "form", "truth", "effects", "flow_speeds_mps", "grid", "cycles", "feedback",
-                "bin_faults")
-_TOWING_KEYS = ("scale", "seed", "form", "speeds_mps", "headings", "repeats")
-
-
 def register(sub) -> None:
     """Add ``virtual-lab`` with its subcommands."""
     p = add_verb(sub, "virtual-lab", help="write virtual tunnel / towing-tank campaigns (no hardware needed)",
@@ -100,14 +94,13 @@ def register(sub) -> None:
         pool.add_cli(vsub)
 
 
-def _section(path: Path | None, name: str) -> dict:
+def _section(path: Path | None, name: str):
+    """The section's campaign settings and rig settings (workbench.params; unknown keys refused)."""
     from workbench.params import read_section
+    from workbench.virtual_lab.settings import campaign_and_rig
 
-    return read_section(path, name)[0]
-
-
-def _split(section: dict, keys: tuple[str, ...]) -> tuple[dict, dict]:
-    return {k: v for k, v in section.items() if k in keys}, {k: v for k, v in section.items() if k not in keys}
+    raw, source = read_section(path, name)
+    return campaign_and_rig(raw, name, source)
 
 
 def _pick(cli, yaml_value, default):
@@ -130,16 +123,14 @@ def _tunnel(args) -> int:
 
     from workbench.virtual_lab.tunnel import generate_tunnel
 
-    gen, rig = _split(_section(args.params, "tunnel"), _TUNNEL_KEYS)
-    effects = list(gen.get("effects") or []) + list(args.effect or [])
+    gen, rig = _section(args.params, "tunnel")
     t0 = time.perf_counter()
     out = generate_tunnel(
-        args.out, scale=_pick(args.scale, gen.get("scale"), "demo"), seed=int(_pick(args.seed, gen.get("seed"), 0)),
-        form=_pick(args.form, gen.get("form"), "csv"), truth=_pick(args.truth, gen.get("truth"), "rich"),
-        effects=effects, flow_speeds=_pick(args.flow_speeds, gen.get("flow_speeds_mps"), None),
-        grid=gen.get("grid"), cycles=_pick(args.cycles, gen.get("cycles"), None),
-        feedback=_pick(args.feedback, gen.get("feedback"), None),
-        bin_faults=bool(_pick(args.bin_faults, gen.get("bin_faults"), False)), settings=rig, show_progress=True,
+        args.out, scale=_pick(args.scale, gen.scale, "demo"), seed=_pick(args.seed, gen.seed, 0),
+        form=_pick(args.form, gen.form, "csv"), truth=_pick(args.truth, gen.truth, "rich"),
+        effects=[*gen.effects, *(args.effect or [])], flow_speeds=_pick(args.flow_speeds, gen.flow_speeds_mps, None),
+        grid=gen.grid, cycles=_pick(args.cycles, gen.cycles, None), feedback=_pick(args.feedback, gen.feedback, None),
+        bin_faults=bool(_pick(args.bin_faults, gen.bin_faults, False)), settings=rig, show_progress=True,
         plan=getattr(args, "plan", None))
     _summary(out, "water tunnel", time.perf_counter() - t0)
     return 0
@@ -150,13 +141,12 @@ def _towing(args) -> int:
 
     from workbench.virtual_lab.towing import HEADINGS, generate_towing
 
-    gen, rig = _split(_section(args.params, "towing"), _TOWING_KEYS)
+    gen, rig = _section(args.params, "towing")
     t0 = time.perf_counter()
     out = generate_towing(
-        args.out, scale=_pick(args.scale, gen.get("scale"), "demo"), seed=int(_pick(args.seed, gen.get("seed"), 0)),
-        form=_pick(args.form, gen.get("form"), "csv"), speeds=_pick(args.speeds, gen.get("speeds_mps"), None),
-        headings=tuple(gen.get("headings") or HEADINGS), repeats=gen.get("repeats"), settings=rig,
-        show_progress=True)
+        args.out, scale=_pick(args.scale, gen.scale, "demo"), seed=_pick(args.seed, gen.seed, 0),
+        form=_pick(args.form, gen.form, "csv"), speeds=_pick(args.speeds, gen.speeds_mps, None),
+        headings=gen.headings or HEADINGS, repeats=gen.repeats, settings=rig, show_progress=True)
     _summary(out, "towing tank", time.perf_counter() - t0)
     return 0
 

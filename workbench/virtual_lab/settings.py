@@ -210,6 +210,58 @@ def _check_date(value: str) -> None:
         raise ValueError(f"date {value!r} is not YYYY-MM-DD") from None
 
 
+@dataclass(frozen=True)
+class TunnelCampaignSettings:
+    """The rest of a ``tunnel`` section: what campaign to make (size, seed, form, truth, planted effects)."""
+
+    scale: str = "demo"
+    seed: int = 0
+    form: str = "csv"
+    truth: str = "rich"
+    #: effect specs, ``"servo_lag:tau_s=0.04"`` or mappings (workbench virtual-lab effects)
+    effects: tuple[Any, ...] = ()
+    flow_speeds_mps: tuple[float, ...] | None = None
+    #: "paper", "demo", a mapping of parameter lists or a list of parameter sets (:func:`resolve_grid`)
+    grid: Any = None
+    cycles: int | None = None
+    feedback: bool | None = None
+    bin_faults: bool = False
+
+
+@dataclass(frozen=True)
+class TowingCampaignSettings:
+    """The rest of a ``towing`` section: what campaign to make."""
+
+    scale: str = "demo"
+    seed: int = 0
+    form: str = "csv"
+    speeds_mps: tuple[float, ...] | None = None
+    headings: tuple[str, ...] | None = None
+    repeats: int | None = None
+
+
+def campaign_and_rig(raw: Mapping[str, Any] | None, key: str, path: str | None = None):
+    """A ``tunnel`` or ``towing`` section as (campaign settings, rig settings).
+
+    Unknown keys are refused against both halves (a ParamsError naming the file, the key path and
+    every allowed key).
+    """
+    from workbench.params import build, suggest
+
+    campaign_cls, rig_cls = {"tunnel": (TunnelCampaignSettings, TunnelSettings),
+                             "towing": (TowingCampaignSettings, TowingSettings)}[key]
+    raw = dict(raw or {})
+    own = [f.name for f in dataclasses.fields(campaign_cls)]
+    allowed = own + [f.name for f in dataclasses.fields(rig_cls)]
+    for name in raw:
+        if name not in allowed:
+            raise ParamsError(f"unknown setting '{name}'", path=path, where=f"{key}.{name}",
+                              hint=suggest(str(name), allowed))
+    campaign = build(campaign_cls, {k: v for k, v in raw.items() if k in own}, key=key, path=path)
+    rig = build(rig_cls, {k: v for k, v in raw.items() if k not in own}, key=key, path=path)
+    return campaign, rig
+
+
 def tunnel_settings(raw: Mapping[str, Any] | None = None, where: str = "tunnel") -> TunnelSettings:
     """TunnelSettings from a YAML section's rig part (other keys are the caller's); see workbench.params."""
     from workbench.params import build
