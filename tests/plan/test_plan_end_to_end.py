@@ -39,7 +39,7 @@ def test_ensemble_reports_calibration_measured_on_held_out_sets(ensemble_dir):
 
 
 @pytest.mark.slow
-def test_plan_measure_validate(ensemble_dir, tmp_path, capsys):
+def test_plan_measure_validate_add(ensemble_dir, tmp_path, capsys, monkeypatch):
     from workbench.cli import main
     from workbench.plan.acquisition import RigRanges
     from workbench.plan.planner import PlanSettings, plan_campaign
@@ -72,6 +72,16 @@ def test_plan_measure_validate(ensemble_dir, tmp_path, capsys):
     assert rec["tunnel_s"] == pytest.approx(sum(2 / r["frequency_hz"] + 30.0 for r in runs), rel=1e-3)
     assert rec["total_after"] < rec["total_before"]
     assert np.isfinite([r["gain"] for r in rec["runs"]]).all()
-    measured = generate_tunnel(tmp_path / "raw" / "next-1", plan=out)
+    # measured in a project: validated and added (registered for dvc repro) like any campaign
+    project = tmp_path / "proj"
+    (project / "datasets" / "raw").mkdir(parents=True)
+    (project / "pipelines").mkdir()
+    (project / "pipelines" / "campaigns.yaml").write_text("tunnel: []\ntowing: []\n")
+    measured = generate_tunnel(project / "datasets" / "raw" / "next-1", plan=out)
     assert main(["campaign", "validate", str(measured)]) == 0
     assert "valid (water_tunnel, 6 runs checked)" in capsys.readouterr().err
+    from workbench.ingest.registry import load_registry
+
+    monkeypatch.setenv("WORKBENCH_HOME", str(project))
+    assert main(["campaign", "add", str(measured), "--no-dvc"]) == 0
+    assert "next-1" in load_registry(project)["tunnel"]

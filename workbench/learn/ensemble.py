@@ -139,12 +139,14 @@ def _per_channel(x) -> dict:
 
 
 def train_ensemble(cfg, out_dir: str | Path, *, members: int = 5, first_seed: int = 0,
-                   report: Callable[[str], None] | None = None) -> dict:
+                   report: Callable[[str], None] | None = None, split=None) -> dict:
     """Train ``members`` FED-LSTMs through :func:`workbench.learn.train.train` and write the ensemble folder.
 
     ``cfg`` is the :class:`LearnConfig` every member uses (its ``trainer.seed`` is replaced by
     ``first_seed + k``; its ``model_dir`` is ignored). The data are read and split once. Returns
     the ``ensemble.json`` record (calibration before/after, member and ensemble test MSE, costs).
+    ``split``: a :class:`~workbench.learn.split.ParameterSplit` to use instead of splitting the
+    data by ``cfg.data.split`` (e.g. keep a first campaign's split and train on every later run).
     """
     from workbench.atomic import atomic_dir
     from workbench.errors import ContractError
@@ -157,7 +159,7 @@ def train_ensemble(cfg, out_dir: str | Path, *, members: int = 5, first_seed: in
         raise ContractError(f"an ensemble needs at least 2 members, got {members}")
     say = report or (lambda s: None)
     t0 = time.perf_counter()
-    prepared = prepare_data(read_table(cfg.data.paths), cfg.data)
+    prepared = prepare_data(read_table(cfg.data.paths), cfg.data, split=split)
     models, member_rec = [], []
     for k in range(members):
         seed = first_seed + k

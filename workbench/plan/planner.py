@@ -65,11 +65,12 @@ def _plan_id(out: Path, given: str | None) -> str:
 def plan_campaign(ensemble_dir: str | Path, gait_files: Sequence[str | Path], n_runs: int, out: str | Path, *,
                   diagnosis: str | Path | None = None, settings: PlanSettings | None = None,
                   campaign_id: str | None = None, date: str | None = None, robot_yaml: str | Path = "pipelines/robot.yaml",
-                  drag_json: str | Path | None = None, write: bool = True) -> dict:
+                  drag_json: str | Path | None = None, write: bool = True, region=None) -> dict:
     """Propose ``n_runs`` runs (plus the diagnosis's) and write ``out`` and ``plan.md`` beside it.
 
     Returns the plan record (runs with their reasons and gains, region variance before/after,
-    tunnel time, costs).
+    tunnel time, costs). ``region``: an operating region already computed from ``gait_files``
+    (:func:`~workbench.plan.region.operating_region`), to skip the swims.
     """
     from workbench.learn.ensemble import load_ensemble
     from workbench.plan.acquisition import IntegratedVariance, greedy_select, random_candidates
@@ -82,8 +83,10 @@ def plan_campaign(ensemble_dir: str | Path, gait_files: Sequence[str | Path], n_
     cid = _plan_id(out, campaign_id)
     t0 = time.perf_counter()
     ens = load_ensemble(ensemble_dir)
-    region = operating_region(gait_files, robot_yaml=robot_yaml, drag_json=drag_json, duration_s=s.swim_s,
-                              cycles=s.region_cycles, points_per_cycle=s.region_points_per_cycle, max_rank=s.max_rank)
+    if region is None:
+        region = operating_region(gait_files, robot_yaml=robot_yaml, drag_json=drag_json, duration_s=s.swim_s,
+                                  cycles=s.region_cycles, points_per_cycle=s.region_points_per_cycle,
+                                  max_rank=s.max_rank)
     t_region = time.perf_counter()
     cands = random_candidates(s.ranges, s.n_candidates, s.seed)
     forced: list[int] = []
@@ -140,8 +143,6 @@ def _ordered_runs(cands: Sequence[Candidate], sel, ranges: RigRanges) -> list[di
 
 def manifest_text(record: dict, s: PlanSettings, date: str | None) -> str:
     """The contract-v1 campaign.toml of the plan: runs with parameters, flow speed and cycles, no files."""
-    from workbench.virtual_lab.writers import manifest_text as toml_text
-
     day = date or _dt.date.today().isoformat()
     head = {"schema": "workbench/campaign@1", "id": record["campaign_id"], "facility": "water_tunnel", "date": day,
             "description": f"{PLAN_NOTE} ({record['n_runs']} runs, {record['tunnel_s'] / 60:.1f} tunnel minutes); "
@@ -152,7 +153,36 @@ def manifest_text(record: dict, s: PlanSettings, date: str | None) -> str:
     lines = ["# A PLAN: no run has been measured yet, so no run names its files (loadcell/motion or mcap).",
              "# Measure each run as given (the rig's controller, or `workbench virtual-lab tunnel DIR --plan THIS`),",
              "# then add the file entries per run and `workbench campaign add DIR`. Why each run: plan.md.", ""]
-    return "\n".join(lines) + toml_text(head, tables, runs)
+    return "\n".join(lines) + _toml(head, tables, runs)
+
+
+def _value(v: Any) -> str:
+    import json
+    import math
+
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ContractError(f"non-finite value {v} in a planned run")
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _toml(head: Mapping[str, Any], tables: Mapping[str, Mapping[str, Any]], runs: Sequence[Mapping[str, Any]]) -> str:
+    """campaign.toml text: top-level keys (``date`` bare, a TOML date), tables, then ``[[runs]]``."""
+    lines = [f"{k} = {v}" if k == "date" else f"{k} = {_value(v)}" for k, v in head.items()]
+    for name, table in tables.items():
+        lines += ["", f"[{name}]"] + [f"{k} = {_value(v)}" for k, v in table.items()]
+    for run in runs:
+        lines += ["", "[[runs]]"] + [f"{k} = {_value(v)}" for k, v in run.items()]
+    return "\n".join(lines) + "\n"
 
 
 def plan_markdown(record: dict, out_name: str) -> str:
