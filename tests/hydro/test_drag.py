@@ -1,6 +1,7 @@
 """Body drag fit: plateau detection, run means, weighted fit, recovery of planted laws, flags, drag.json."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import polars as pl
@@ -9,7 +10,7 @@ from towing_fixture import PAPER, carriage_profile, towing_frame
 
 from workbench.errors import ContractError, DataError, ParamsError
 from workbench.hydro.drag import DragFitParams, PlateauParams, fit_drag, mean_sem, steady_window
-from workbench.project import load_params, project_root
+from workbench.project import load_params
 
 
 @pytest.fixture(scope="module")
@@ -122,7 +123,8 @@ def test_drag_json_follows_the_contract(paper_fit):
 
 
 def test_parameters_from_the_repository_file_and_typos_refused():
-    params = DragFitParams.from_dict(load_params(project_root() / "pipelines/drag.yaml", "fit"))
+    repo = Path(__file__).resolve().parents[2]  # the checkout (tests run with an isolated project root)
+    params = DragFitParams.from_dict(load_params(repo / "pipelines/drag.yaml", "fit"))
     assert params == DragFitParams()
     with pytest.raises(ParamsError, match=r"fit\.plateau\.smoth_s.*did you mean .smooth_s"):
         DragFitParams.from_dict({"plateau": {"smoth_s": 1.0}})
