@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -48,7 +49,15 @@ def test_train_writes_model_folder_and_registers_champion(trained, project):
     assert [m.step for m in curve] == [1, 2]
     saved = json.loads((trained / "metrics.json").read_text())
     assert run.data.metrics["test_mse_fy_n"] == pytest.approx(saved["test_mse_fy_n"])
-    assert {"model/model.json", "model/weights.pt"} <= {a.path for a in client.list_artifacts(run.info.run_id, "model")}
+    # the model is an MLflow model of the run (MLmodel, signature) holding the model folder as its leg_model artifact
+    assert "model/MLmodel" in {a.path for a in client.list_artifacts(run.info.run_id, "model")}
+    import mlflow
+
+    from workbench.learn.registry import _model_folder
+
+    logged = _model_folder(Path(mlflow.artifacts.download_artifacts(f"runs:/{run.info.run_id}/model")))
+    assert {"model.json", "weights.pt", "split.json"} <= {p.name for p in logged.iterdir()}
+    assert run.data.tags["state"] == "complete" and run.data.tags["model_id"] == mv.source.removeprefix("models:/")
 
 
 def test_registered_model_reproduces_its_test_metric_in_a_fresh_process(trained, project, parquet):

@@ -1,4 +1,5 @@
-"""Optuna search: two worker processes on one journal-backed study, every trial once, in MLflow; pruning = KILLED."""
+"""Optuna search: two worker processes on one journal-backed study, every trial once, in MLflow; pruning = KILLED
+and tagged state=pruned."""
 
 from __future__ import annotations
 
@@ -49,6 +50,8 @@ def test_two_workers_share_one_study_without_lost_or_duplicated_trials(config, p
     state = {t.number: t.state.name for t in trials}
     for r in children:
         assert r.info.status == {"COMPLETE": "FINISHED", "PRUNED": "KILLED"}[state[int(r.data.tags["trial"])]]
+        assert r.data.tags["state"] == state[int(r.data.tags["trial"])].lower()
+        assert r.info.run_name.startswith(f"trial {int(r.data.tags['trial']):03d} s2 synth @")
     best = json.loads((out / "best.json").read_text())["best"]
     assert best["number"] == study.best_trial.number and best["value"] == pytest.approx(study.best_value)
     assert client.get_model_version_by_alias("fed-lstm", "tuned").run_id == best["mlflow_run_id"]
@@ -58,7 +61,7 @@ def test_two_workers_share_one_study_without_lost_or_duplicated_trials(config, p
     assert sorted(t.number for t in study.get_trials()) == [0, 1, 2, 3, 4]
 
 
-def test_a_pruned_trial_ends_its_run_killed(config, project, parquet):
+def test_a_pruned_trial_ends_its_run_killed_and_tagged_pruned(config, project, parquet):
     import dataclasses
 
     import optuna
@@ -81,3 +84,5 @@ def test_a_pruned_trial_ends_its_run_killed(config, project, parquet):
     exp = client.get_experiment_by_name("fed-lstm")
     runs = client.search_runs([exp.experiment_id], "tags.study = 'pruned'")
     assert len(runs) == 1 and runs[0].info.status == "KILLED"
+    # MLflow's status cannot say "pruned": the run's state tag does (issue 15.3)
+    assert runs[0].data.tags["state"] == "pruned" and "pruned" in runs[0].data.tags["state_detail"].lower()

@@ -4,45 +4,29 @@ Params: the diagnosed model, the campaign, the settings (flattened). Metrics: he
 channel before and after, the share removed, the number of effects, and each effect's canonical
 parameters and held-out reduction (``effect.<name>.<param>``). Tags: the claimed effects, the
 unexplained kinds, ``git_commit`` and ``dvc_stage``. Artifacts: the whole output folder
-(diagnosis.json, augmented_model.json, report.md, figures/).
+(diagnosis.json, augmented_model.json, report.md, figures/) and ``params.json``.
+
+Logged through :mod:`workbench.tracking`: run names ``diagnose <model> <campaign> @<commit>``
+(``dvc:<stage> ...`` from a DVC stage), the common tags, every parameter (no cut at 100).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 
 EXPERIMENT = "diagnose"
 
 
-def _flat(d: dict, prefix: str = "") -> dict[str, str]:
-    out: dict[str, str] = {}
-    for k, v in d.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict):
-            out.update(_flat(v, key + "."))
-        else:
-            out[key] = str(v)[:500]
-    return out
-
-
 def log_diagnosis(d, out_dir: str | Path, tracking_uri: str | None = None) -> str:
     """Log ``d`` and the files in ``out_dir``; returns the MLflow run id."""
-    import logging
+    from workbench.tracking import log_artifacts, log_metrics, run_name, run_tags, tracked_run
 
-    import mlflow
-
-    from workbench.project import git_commit, setup_mlflow
-
-    logging.getLogger("mlflow").setLevel(logging.WARNING)
-    setup_mlflow(tracking_uri, EXPERIMENT)
-    tags = {"kind": "diagnose", "campaign": d.campaign_id, "model": d.model, "git_commit": git_commit(),
-            "dvc_stage": os.environ.get("DVC_STAGE", "manual"),
-            "effects": ",".join(e.name for e in d.effects) or "none",
-            "unexplained": ",".join(u.kind for u in d.unexplained) or "none"}
+    tags = run_tags(kind="diagnose", campaigns=[d.campaign_id], model=d.model,
+                    effects=",".join(e.name for e in d.effects) or "none",
+                    unexplained=",".join(u.kind for u in d.unexplained) or "none")
     params = {"model": d.model, "campaign": d.campaign_id, "heldout_runs": len(d.heldout_runs),
-              "train_runs": len(d.train_runs), **_flat(dataclasses.asdict(d.settings), "settings.")}
+              "train_runs": len(d.train_runs), "settings": dataclasses.asdict(d.settings)}
     metrics: dict[str, float] = {"n_effects": float(len(d.effects)), "runtime_s": float(d.runtime_s)}
     for c, v in d.mse_before.items():
         metrics[f"mse_before.{c}"] = v
@@ -52,12 +36,12 @@ def log_diagnosis(d, out_dir: str | Path, tracking_uri: str | None = None) -> st
     for e in d.effects:
         metrics[f"effect.{e.name}.heldout_mse_reduction"] = e.heldout_mse_reduction
         for k, v in e.params.items():
-            if isinstance(v, float) and v == v:
+            if isinstance(v, float):
                 metrics[f"effect.{e.name}.{k}"] = v
-    with mlflow.start_run(run_name=f"{d.campaign_id}-{d.model}"[:200], tags=tags) as run:
-        mlflow.log_params({k[:250]: v for k, v in list(params.items())[:100]})
-        mlflow.log_metrics(metrics)
-        mlflow.log_artifacts(str(out_dir))
+    with tracked_run(name=run_name("diagnose", d.model, [d.campaign_id]), tags=tags, experiment=EXPERIMENT,
+                     tracking_uri_=tracking_uri, params=params) as run:
+        log_metrics(metrics)
+        log_artifacts(folders={"": out_dir})
         return run.info.run_id
 
 
@@ -72,28 +56,20 @@ def log_trajectory_diagnosis(doc: dict, diagnoses: dict, out_dir: str | Path, se
     ``n_trials.<label>``, and each effect's parameters (``effect.<label>.<name>.<param>``).
     Artifacts: the output folder (trajectory_errors.json/.png, trajectory_diagnosis.json).
     """
-    import logging
+    from workbench.tracking import log_artifacts, log_metrics, run_name, run_tags, tracked_run
 
-    import mlflow
-
-    from workbench.project import git_commit, setup_mlflow
-
-    logging.getLogger("mlflow").setLevel(logging.WARNING)
-    setup_mlflow(tracking_uri, EXPERIMENT)
     trials = Path(str(doc.get("trials", "trials"))).name
     models = doc.get("models") or {}
     effects = sorted({f"{lab}:{e['name']}" for lab, d in diagnoses.items() for e in d.effects})
     unexplained = sorted({f"{lab}:{u['kind']}" for lab, d in diagnoses.items() for u in d.unexplained})
-    tags = {"kind": "diagnose-trajectory", "campaign": trials, "trials": str(doc.get("trials")),
-            "model": ",".join(models) or "none", "git_commit": git_commit(),
-            "dvc_stage": os.environ.get("DVC_STAGE", "manual"),
-            "effects": ",".join(effects) or "none", "unexplained": ",".join(unexplained) or "none"}
-    params: dict[str, str] = {"trials": str(doc.get("trials")), "gaits": str(doc.get("gaits")),
-                              "reference": str(doc.get("reference")), "wall_margin_m": str(doc.get("wall_margin_m"))}
-    for lab, m in models.items():
-        params[f"model.{lab}"] = str(m.get("spec"))
+    tags = run_tags(kind="diagnose-trajectory", campaigns=[trials], trials=str(doc.get("trials")),
+                    model=",".join(models) or "none", effects=",".join(effects) or "none",
+                    unexplained=",".join(unexplained) or "none")
+    params: dict = {"trials": str(doc.get("trials")), "gaits": str(doc.get("gaits")),
+                    "reference": str(doc.get("reference")), "wall_margin_m": str(doc.get("wall_margin_m")),
+                    "model": {lab: str(m.get("spec")) for lab, m in models.items()}}
     if settings is not None and dataclasses.is_dataclass(settings):
-        params.update(_flat(dataclasses.asdict(settings), "settings."))
+        params["settings"] = dataclasses.asdict(settings)
     metrics: dict[str, float] = {"runtime_s": float(doc.get("runtime_s") or 0.0)}
     for lab, m in models.items():
         for key in ("rms_position_m", "rms_heading_deg", "mean_final_position_m", "n_trials", "sim_seconds"):
@@ -108,10 +84,10 @@ def log_trajectory_diagnosis(doc: dict, diagnoses: dict, out_dir: str | Path, se
                     metrics[f"{key}.{when}.{lab}"] = v
         for e in d.effects:
             for k, v in e["params"].items():
-                if isinstance(v, float) and v == v:
+                if isinstance(v, float):
                     metrics[f"effect.{lab}.{e['name']}.{k}"] = v
-    with mlflow.start_run(run_name=f"{trials}-trajectory"[:200], tags=tags) as run:
-        mlflow.log_params({k[:250]: v[:500] for k, v in list(params.items())[:100]})
-        mlflow.log_metrics(metrics)
-        mlflow.log_artifacts(str(out_dir))
+    with tracked_run(name=run_name("diagnose-trajectory", ",".join(models) or None, [trials]), tags=tags,
+                     experiment=EXPERIMENT, tracking_uri_=tracking_uri, params=params) as run:
+        log_metrics(metrics)
+        log_artifacts(folders={"": out_dir})
         return run.info.run_id

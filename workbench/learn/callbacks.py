@@ -50,10 +50,9 @@ class EpochLog(pl.Callback):
                         f"val {row['val_loss']:.4f}  lr {row['lr']:.1e}  {row['windows_per_s']:,.0f} windows/s  "
                         f"{row['epoch_s']:.1f} s")
         if self.mlflow_run:
-            import mlflow
+            from workbench.tracking import log_metrics
 
-            mlflow.log_metrics({k: v for k, v in row.items() if k != "epoch" and math.isfinite(v)},
-                               step=row["epoch"])
+            log_metrics({k: v for k, v in row.items() if k != "epoch" and math.isfinite(v)}, step=row["epoch"])
 
 
 class BestWeights(pl.Callback):

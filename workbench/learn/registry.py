@@ -75,11 +75,32 @@ def load_path(path: str | Path, **kwargs):
 
 
 def load_model_uri(spec: str, *, tracking_uri: str | None = None):
-    """``models:/name@alias`` or ``models:/name/version`` from the MLflow registry."""
-    from workbench.learn.tracking import download_model
+    """``models:/name@alias`` or ``models:/name/version`` from the MLflow registry.
+
+    A version is an MLflow pyfunc model whose artifact ``leg_model`` is the model folder
+    (:mod:`workbench.learn.pyfunc`), or, if it was registered before models were MLflow models,
+    the plain folder itself; both load.
+    """
+    from workbench.tracking import download_model
 
     path, info = download_model(spec, tracking_uri)
-    return load_folder(path, **info)
+    return load_folder(_model_folder(path), **info)
+
+
+def _model_folder(path: Path) -> Path:
+    """The model folder inside a downloaded version: the MLflow model's ``leg_model`` artifact, or the folder itself."""
+    path = Path(path)
+    if (path / "model.json").is_file() or not (path / "MLmodel").is_file():
+        return path
+    import yaml
+
+    try:
+        doc = yaml.safe_load((path / "MLmodel").read_text(encoding="utf-8")) or {}
+        rel = doc["flavors"]["python_function"]["artifacts"]["leg_model"]["path"]
+    except (OSError, yaml.YAMLError, KeyError, TypeError) as exc:
+        raise ModelError(f"an MLflow model without the workbench's leg_model artifact ({type(exc).__name__}: {exc})",
+                         path=path / "MLmodel") from None
+    return path / rel
 
 
 def load_champion(*, tracking_uri: str | None = None, name: str | None = None, alias: str | None = None,

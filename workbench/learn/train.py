@@ -38,32 +38,35 @@ def _quiet_lightning() -> None:
 
 @contextmanager
 def _mlflow_run(cfg: LearnConfig, tags: dict, run_name: str, parent_run_id: str | None):
-    """An MLflow run that ends KILLED when an Optuna trial is pruned, FAILED on any other error."""
+    """An MLflow run (:func:`workbench.tracking.tracked_run`), or None when tracking is off.
+
+    A pruned Optuna trial ends KILLED and tagged ``state=pruned``, Ctrl-C KILLED ``interrupted``,
+    any other error FAILED ``failed``, else FINISHED ``complete``.
+    """
     if not cfg.tracking.enabled:
         yield None
         return
-    import mlflow
+    from workbench.tracking import tracked_run
 
-    from workbench.learn.tracking import setup
-
-    setup(cfg.tracking.tracking_uri, cfg.tracking.experiment)
-    nested = parent_run_id is not None or mlflow.active_run() is not None
-    run = mlflow.start_run(run_name=run_name, tags=tags, nested=nested, parent_run_id=parent_run_id)
-    status = "FINISHED"
-    try:
+    with tracked_run(name=run_name, tags=tags, experiment=cfg.tracking.experiment,
+                     tracking_uri_=cfg.tracking.tracking_uri, parent_run_id=parent_run_id) as run:
         yield run
-    except BaseException as exc:
-        status = "KILLED" if type(exc).__name__ in ("TrialPruned", "KeyboardInterrupt") else "FAILED"
-        raise
-    finally:
-        mlflow.end_run(status=status)
 
 
-def default_run_name(cfg: LearnConfig) -> str:
-    """``<variant> <hidden>x<layers> L<seq_len>`` unless the configuration names the run."""
-    m = cfg.model
-    variant = m.variant if m.variant != "ef_residual" else f"ef_residual({m.backbone})"
-    return cfg.tracking.run_name or f"{variant} {m.hidden_size}x{m.num_layers} L{cfg.data.seq_len}"
+def default_run_name(cfg: LearnConfig, campaigns=(), kind: str = "train", extra_tags: dict | None = None) -> str:
+    """The run's name unless the configuration gives one (``tracking.run_name``).
+
+    ``train fed-lstm demo-tunnel @a1b2c3d`` (``dvc:train ...`` from a DVC stage) for training,
+    ``trial 003 <study> <campaigns> @<commit>`` for a tune trial: :func:`workbench.tracking.run_name`.
+    """
+    from workbench.tracking import run_name
+
+    if cfg.tracking.run_name:
+        return cfg.tracking.run_name
+    extra = extra_tags or {}
+    if kind == "trial" and "trial" in extra:
+        return run_name(f"trial {int(extra['trial']):03d}", extra.get("study"), campaigns, cfg.tracking.dvc_stage)
+    return run_name(kind, cfg.tracking.registered_model, campaigns, cfg.tracking.dvc_stage)
 
 
 def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: Callable[[str], None] | None = None,
@@ -88,8 +91,8 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
     from workbench.learn.metrics import score_runs
     from workbench.learn.module import WrenchRegressor
     from workbench.learn.nets import build_net
-    from workbench.learn.tracking import flat_metrics, flat_params, run_tags
     from workbench.learn.windows import read_table
+    from workbench.tracking import log_metrics, log_params, run_tags
 
     cfg = cfg.validate()
     _quiet_lightning()
@@ -109,15 +112,15 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
                     **(extra_tags or {}))
     metrics: dict = {}
     objects: dict = {"prepared": prepared, "datamodule": dm, "module": module}
-    with _mlflow_run(cfg, tags, default_run_name(cfg), parent_run_id) as run:
+    with _mlflow_run(cfg, tags, default_run_name(cfg, campaigns, kind, extra_tags), parent_run_id) as run:
         if run is not None:
             import mlflow
 
             objects["run_id"] = run.info.run_id
-            mlflow.log_params({**flat_params(cfg.to_dict()), "n_train_windows": len(dm.ends["train"]),
-                               "n_val_windows": len(dm.ends["val"]), "n_test_windows": len(dm.ends["test"]),
-                               "windows_per_epoch": dm.windows_per_epoch(), "torch_threads_used": threads or "default",
-                               **{f"n_{k}_sets": v for k, v in prepared.split.counts().items()}})
+            log_params({**cfg.to_dict(), "n_train_windows": len(dm.ends["train"]),
+                        "n_val_windows": len(dm.ends["val"]), "n_test_windows": len(dm.ends["test"]),
+                        "windows_per_epoch": dm.windows_per_epoch(), "torch_threads_used": threads or "default",
+                        **{f"n_{k}_sets": v for k, v in prepared.split.counts().items()}})
             mlflow.log_dict(prepared.split.to_dict(prepared.table), "split.json")
         log = EpochLog(cfg.trainer.max_epochs, report, mlflow_run=run is not None)
         best = BestWeights()
@@ -169,22 +172,9 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
         if cfg.model_dir:
             write_model_dir(cfg, model, prepared, summary, log.history, cfg.model_dir)
         if run is not None:
-            import mlflow
-
-            mlflow.log_metrics(flat_metrics(summary))
+            log_metrics(summary, sep="_")
             if log_model:
-                if cfg.model_dir:
-                    mlflow.log_artifacts(cfg.model_dir, artifact_path="model")
-                else:
-                    with tempfile.TemporaryDirectory() as tmp:
-                        _write_model_files(cfg, model, prepared, summary, log.history, Path(tmp))
-                        mlflow.log_artifacts(tmp, artifact_path="model")
-                if cfg.tracking.register:
-                    from workbench.learn.tracking import register_model
-
-                    objects["model_version"] = register_model(
-                        run, cfg.tracking.registered_model, cfg.tracking.alias,
-                        tags={k: tags[k] for k in ("campaign", "variant", "git_commit", "dvc_stage")})
+                objects.update(_log_model(cfg, run, model, prepared, summary, log.history, tags))
     metrics["summary"] = summary
     return metrics, objects
 
@@ -213,6 +203,36 @@ def stop_reason(trainer, cfg: LearnConfig, epochs: int) -> dict:
         return {"reason": "max_epochs", "detail": f"max_epochs={max_epochs} reached"}
     return {"reason": "other", "detail": f"stopped after epoch {epochs} of max_epochs={max_epochs} "
                                          "(a callback asked to stop)"}
+
+
+def _log_model(cfg: LearnConfig, run, model, prepared, summary: dict, history: list[dict], tags: dict) -> dict:
+    """Log the model folder as an MLflow pyfunc model of the run; register it when the configuration says so.
+
+    Returns ``{"model_id"}`` (the MLflow logged model) and, when registered, ``{"model_version"}``.
+    """
+    import mlflow
+
+    from workbench.learn.pyfunc import log_leg_model
+    from workbench.tracking import MODEL_ARTIFACT, MODEL_ID_TAG, register_model
+
+    keep = ("campaign", "variant", "git_commit", "dvc_stage")
+    if cfg.model_dir:
+        info = log_leg_model(cfg.model_dir, table=prepared.table, name=MODEL_ARTIFACT,
+                             tags={k: tags[k] for k in keep if k in tags})
+        curve = Path(cfg.model_dir) / "learning_curve.png"
+        if curve.is_file():
+            mlflow.log_artifact(str(curve))
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            _write_model_files(cfg, model, prepared, summary, history, Path(tmp))
+            info = log_leg_model(tmp, table=prepared.table, name=MODEL_ARTIFACT,
+                                 tags={k: tags[k] for k in keep if k in tags})
+    mlflow.set_tag(MODEL_ID_TAG, info.model_id)
+    out = {"model_id": info.model_id}
+    if cfg.tracking.register:
+        out["model_version"] = register_model(mlflow.get_run(run.info.run_id), cfg.tracking.registered_model,
+                                              cfg.tracking.alias, tags={k: tags[k] for k in keep if k in tags})
+    return out
 
 
 def _summary(metrics: dict) -> dict:

@@ -26,7 +26,6 @@ the ``tuned`` alias; its parameters go to ``best.json`` as ``--set`` overrides f
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time
@@ -108,7 +107,7 @@ def resolve_storage(storage: str | None, study: str, tune: "TuneCfg | None" = No
     # winner's tables exist.
     from sqlalchemy.exc import IntegrityError, ProgrammingError
 
-    from workbench.learn.tracking import retry_race
+    from workbench.tracking import retry_race
 
     return retry_race(lambda: HeartbeatRDBStorage(storage, **beat,
                                                   heartbeat_stale_trial_callback=retry_callback(tune.max_retry)),
@@ -138,7 +137,7 @@ def trial_config(base: LearnConfig, tune: TuneCfg, params: Mapping[str, Any], st
     over: dict[str, Any] = {PARAM_KEYS.get(k, k): v for k, v in params.items()}
     over.update({"trainer.max_epochs": tune.max_epochs, "data.train_windows_per_epoch": tune.train_windows_per_epoch,
                  "model_dir": None, "tracking.register": False,
-                 "tracking.run_name": f"{study} trial {number:03d}"})
+                 "tracking.run_name": None})  # named by train(): "trial 003 <study> <campaigns> @<commit>"
     return base.with_overrides(over)
 
 
@@ -264,8 +263,8 @@ def run_worker(spec: Mapping[str, Any], report: Callable[[str], None] | None = N
     sampler = TrialSeededTPE(tune.sampler_seed, constant_liar=True)
     pruner = make_pruner(tune.pruner)
     study = optuna.load_study(study_name=spec["study"], storage=storage, sampler=sampler, pruner=pruner)
-    if spec.get("tracking_uri"):
-        os.environ["MLFLOW_TRACKING_URI"] = spec["tracking_uri"]
+    if spec.get("tracking_uri"):  # the store the command resolved (its runs' parent is there), not os.environ
+        base = base.with_overrides({"tracking.tracking_uri": spec["tracking_uri"]})
     objective = make_objective(base, tune, spec["study"], spec.get("parent_run_id"), int(spec["worker"]),
                                spec.get("command"))
     tag = f" [worker {spec['worker']}]" if spec.get("n_workers", 1) > 1 else ""
@@ -281,7 +280,7 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
     import optuna
 
     from workbench import procs
-    from workbench.learn.tracking import run_tags, setup
+    from workbench.tracking import log_metrics, log_params, run_name, run_tags, setup
 
     procs.install()  # SIGTERM/SIGHUP clean up as Ctrl-C does: workers stopped, trials failed, runs ended
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -303,13 +302,11 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
     if base.tracking.enabled:
         tracking_uri = setup(base.tracking.tracking_uri, base.tracking.experiment)
         campaigns = _campaigns(base)
-        parent = mlflow.start_run(run_name=f"tune {tune.study}", tags=run_tags(
+        parent = mlflow.start_run(run_name=run_name("tune", tune.study, campaigns, base.tracking.dvc_stage), tags=run_tags(
             kind="tune", campaigns=campaigns, dvc_stage=base.tracking.dvc_stage, study=tune.study, storage=where))
         parent_id = parent.info.run_id
-        from workbench.learn.tracking import flat_params
-
-        mlflow.log_params(flat_params({"tune": {k: v for k, v in tune.__dict__.items() if k != "space"},
-                                       "space": dict(tune.space)}))
+        log_params({"tune": {k: v for k, v in _tune_dict(tune).items() if k != "space"}, "space": _tune_dict(tune)["space"],
+                    "train": base.to_dict()})
     status = "FAILED"
     try:
         spec = {"config": base.to_dict(), "tune": _tune_dict(tune), "storage": where, "study": tune.study,
@@ -330,9 +327,9 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
         if base.tracking.enabled and tune.register_best and summary["best"].get("mlflow_run_id"):
             summary["best"]["model_version"] = _register_best(base, tune, summary["best"], storage)
         if base.tracking.enabled:
-            mlflow.log_metrics({"best_val_loss": summary["best"]["value"], "n_complete": summary["counts"]["COMPLETE"],
-                                "n_pruned": summary["counts"]["PRUNED"], "n_failed": summary["counts"]["FAIL"],
-                                "elapsed_s": elapsed})
+            log_metrics({"best_val_loss": summary["best"]["value"], "n_complete": summary["counts"]["COMPLETE"],
+                         "n_pruned": summary["counts"]["PRUNED"], "n_failed": summary["counts"]["FAIL"],
+                         "elapsed_s": elapsed})
             mlflow.log_dict(summary, "tune_summary.json")
         if out_dir:
             write_outputs(summary, out_dir)
@@ -343,6 +340,7 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
         raise
     finally:
         if parent_id is not None:
+            mlflow.set_tag("state", {"FINISHED": "complete", "KILLED": "interrupted"}.get(status, "failed"))
             mlflow.end_run(status=status)
 
 
@@ -490,7 +488,7 @@ def _register_best(base: LearnConfig, tune: TuneCfg, best: dict, storage) -> str
     import optuna
     from mlflow import MlflowClient
 
-    from workbench.learn.tracking import register_model
+    from workbench.tracking import register_model
 
     client = MlflowClient()
     name = base.tracking.registered_model
