@@ -45,24 +45,23 @@ def register(sub) -> None:
 
 def run(args) -> int:
     """Evaluate, write the metrics file and figures, log them."""
-    import os
-
     from workbench.console import info
     from workbench.learn.config import load_section
 
-    if args.tracking_uri:
-        os.environ["MLFLOW_TRACKING_URI"] = args.tracking_uri
     opts = load_section(args.config, "evaluate")
     lines = evaluate_to_files(data=args.data, split_path=args.split, out=args.out, figures=args.figures,
                               model=args.model or opts.get("model", "lstm"), also=args.also, options=opts,
-                              mlflow_log=not args.no_mlflow, dvc_stage=args.dvc_stage)
+                              mlflow_log=not args.no_mlflow, dvc_stage=args.dvc_stage, tracking_uri=args.tracking_uri)
     for line in lines:
         info(line)
     return 0
 
 
-def load_model_spec(spec: str):
-    """A model folder path, or any ``load_leg_model`` spec (``lstm``, ``ef``, ``models:/...``)."""
+def load_model_spec(spec: str, tracking_uri: str | None = None):
+    """A model folder path, or any ``load_leg_model`` spec (``lstm``, ``ef``, ``models:/...``).
+
+    Registry specs (``lstm``, ``models:/...``) resolve in ``tracking_uri`` (default: the project's store).
+    """
     from pathlib import Path
 
     from workbench.hydro.legmodel import load_leg_model
@@ -71,11 +70,13 @@ def load_model_spec(spec: str):
         from workbench.learn.registry import load_folder
 
         return load_folder(spec, model_uri=str(spec), model_path=str(spec))
+    if tracking_uri and (spec == "lstm" or spec.startswith("models:")):
+        return load_leg_model(spec, tracking_uri=tracking_uri)
     return load_leg_model(spec)
 
 
 def evaluate_to_files(*, data, split_path, out, figures, model, also, options, mlflow_log=True,
-                      dvc_stage=None) -> list[str]:
+                      dvc_stage=None, tracking_uri=None) -> list[str]:
     """Load data, split and models; score; write the metrics JSON and figures atomically; log to MLflow."""
     import json
     from pathlib import Path
@@ -96,12 +97,12 @@ def evaluate_to_files(*, data, split_path, out, figures, model, also, options, m
     except (json.JSONDecodeError, KeyError, TypeError) as exc:
         raise ContractError(f"not a split record ({type(exc).__name__})", path=sp) from exc
     table = read_table(data)
-    models = {"ef": load_leg_model("ef"), "lstm": load_model_spec(model)}
+    models = {"ef": load_leg_model("ef"), "lstm": load_model_spec(model, tracking_uri)}
     for item in also:
         name, _, spec = item.partition("=")
         if not spec:
             raise ContractError(f"--also {item!r} is not NAME=SPEC")
-        models[name] = load_model_spec(spec)
+        models[name] = load_model_spec(spec, tracking_uri)
     sources = []
     for name, m in models.items():  # which registry version or folder each learned model came from
         d = m.describe()
@@ -138,20 +139,25 @@ def evaluate_to_files(*, data, split_path, out, figures, model, also, options, m
             written.append(folder / name)
         lines.append(f"figures: {', '.join(str(p) for p in written)}")
     if mlflow_log:
-        lines.append(_log_evaluation(metrics, ratios, models["lstm"], table, out, written, options, dvc_stage))
+        lines.append(_log_evaluation(metrics, ratios, models["lstm"], table, out, written, options, dvc_stage,
+                                     tracking_uri))
     return lines
 
 
-def _log_evaluation(metrics, ratios, lstm, table, out, figures, options, dvc_stage) -> str:
-    import mlflow
+def _log_evaluation(metrics, ratios, lstm, table, out, figures, options, dvc_stage, tracking_uri=None) -> str:
+    from pathlib import Path
 
-    from workbench.learn.tracking import run_tags, setup
+    from workbench.tracking import log_artifacts, log_metrics, run_name, run_tags, tracked_run
 
-    setup(None, options.get("experiment", "fed-lstm"))
+    experiment = options.get("experiment", "fed-lstm")
     d = lstm.describe()
     tags = run_tags(kind="evaluate", campaigns=table.campaigns(), variant=d.get("variant"), dvc_stage=dvc_stage,
                     model_uri=d.get("model_uri"), model_run_id=d.get("run_id"), model_version=d.get("model_version"),
                     model_path=d.get("model_path"))
+    uri = str(d.get("model_uri") or d.get("model_path") or "lstm")
+    label = uri.removeprefix("models:/") if uri.startswith("models:/") else Path(uri).name
+    if d.get("model_version") and "@" in label:
+        label += f" v{d['model_version']}"
     flat = {}
     for name, m in metrics.items():
         for c, v in m["mse"].items():
@@ -164,9 +170,9 @@ def _log_evaluation(metrics, ratios, lstm, table, out, figures, options, dvc_sta
     for s, chans in ratios.items():
         for c, v in chans.items():
             flat[f"ratio_lstm_ef_mse_{s}_{c}"] = v
-    with mlflow.start_run(run_name=f"evaluate {'+'.join(table.campaigns())}", tags=tags) as run:
-        mlflow.log_metrics({k: float(v) for k, v in flat.items() if v == v})
-        mlflow.log_artifact(str(out))
-        for f in figures:
-            mlflow.log_artifact(str(f), artifact_path="figures")
-    return f"MLflow: evaluate run {run.info.run_id} in experiment {options.get('experiment', 'fed-lstm')}"
+    with tracked_run(name=run_name("evaluate", label, table.campaigns(), dvc_stage), tags=tags, experiment=experiment,
+                     tracking_uri_=tracking_uri) as run:
+        log_metrics(flat)
+        log_artifacts([out])
+        log_artifacts(figures, under="figures")
+    return f"MLflow: evaluate run {run.info.run_id} in experiment {experiment}"
