@@ -219,3 +219,42 @@ def test_a_campaign_too_small_to_hold_out_a_set_is_a_one_line_data_error(vl_fram
     assert one_set["run_id"].n_unique() >= 2
     with pytest.raises(DataError, match="motion-parameter set"):
         prepare(one_set, DataSettings(), source="tiny.parquet")
+
+
+def test_reference_noise_is_measured_at_rest_and_shrunk_out_of_the_learned_waveform():
+    """The reference's noise must not ride on the corrected model (it biases a mode's damping, hides crosstalk).
+
+    A run at 0.5 Hz: rest, then a strong 2nd harmonic and a weak 9th (4.5 Hz) in white noise of
+    a known level. The rest stretch gives the noise's level; the learned waveform keeps the
+    strong harmonic, drops most of the noise, and the weak harmonic is shrunk, not inflated.
+    """
+    from types import SimpleNamespace
+
+    from workbench.diagnose.reference import _basis, _shrunk_fit, noise_psd
+
+    rng = np.random.default_rng(3)
+    dt, sigma, f = 1 / 65, 0.01, 0.5
+    runs = []
+    for _ in range(36):
+        t = np.arange(-1.0, 8.0, dt)
+        resid = sigma * rng.standard_normal((len(t), 6))
+        runs.append(SimpleNamespace(time_s=t, rest=t < 0, resid=resid, dt_s=dt))
+    psd = noise_psd(runs)
+    level = np.array([psd(nu) for nu in (1.5, 3.0, 4.5)]) / sigma**2
+    assert abs(level.mean() - 1) < 0.15 and np.abs(level - 1).max() < 0.45, level
+    t = np.arange(0.5, 7.5, dt)
+    signal = np.zeros((len(t), 6))
+    signal[:, 0] = 0.2 * np.cos(2 * np.pi * 2 * f * t)
+    signal[:, 1] = 0.3 * sigma * np.sin(2 * np.pi * 9 * f * t)
+    e = signal + sigma * rng.standard_normal(signal.shape)
+    x = _basis(t, f, 12, 3, (t[0], t[-1]))
+    plain = x @ _shrunk_fit(x, e, f, 12, 4, None)
+    shrunk = x @ _shrunk_fit(x, e, f, 12, 4, psd)
+    err_plain = ((plain - signal) ** 2).mean(axis=0)
+    err_shrunk = ((shrunk - signal) ** 2).mean(axis=0)
+    # the strong harmonic is kept (within 1 %), the noise carried into the waveform falls
+    assert np.abs(shrunk[:, 0] - signal[:, 0]).max() < 0.2 * 0.05
+    assert (err_shrunk[2:] < 0.5 * err_plain[2:]).all(), (err_shrunk, err_plain)
+    # a weak harmonic is shrunk towards zero, never amplified
+    amp = 2 * np.abs(np.mean(shrunk[:, 1] * np.sin(2 * np.pi * 9 * f * t)))
+    assert amp < 0.3 * sigma * 1.2

@@ -53,6 +53,8 @@ class ReferenceCorrection:
     max_harmonics: int
     envelope_degree: int
     spans: np.ndarray                     # (n, 2) first and last analysed tick of each reference run (s)
+    #: per reference run: (time_s, residual (T, 6)) before its analysed span (rest, ease-in, edge trim)
+    heads: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     heldout_mse_share: dict[str, float] = field(default_factory=dict)
     matched: int = 0
     nearest: int = 0
@@ -64,16 +66,34 @@ class ReferenceCorrection:
                 "matched_runs": self.matched, "nearest_neighbour_runs": self.nearest,
                 "misfit_share_learned": {k: float(f"{v:.4g}") for k, v in self.heldout_mse_share.items()}}
 
+    def curve(self, i: int, freq: float, time_s: np.ndarray) -> np.ndarray:
+        """Reference run ``i``'s misfit (T, 6) at ``time_s`` (s since the first trigger edge).
+
+        Over and after its analysed span: the fitted stroke-locked waveform. Before it (the rest,
+        the ease-in and the trimmed first ticks, where no waveform was fitted): the reference's
+        own residual, held before its first tick. A filter-stage effect (a mount mode) carries
+        what enters it before the analysed span into it; a waveform extrapolated there, or a
+        correction that jumps from nothing to the waveform, would ring through the mode and bias
+        its damping.
+        """
+        c = self.coefs[i]
+        k = (c.shape[0] // (self.envelope_degree + 1) - 1) // 2
+        # the waveform is a function of the stroke phase; a neighbour of another frequency keeps its shape
+        f = freq if np.isfinite(freq) and freq > 0 else self.freq[i]
+        out = _basis(time_s, f, k, self.envelope_degree, self.spans[i]) @ c
+        if i < len(self.heads) and len(self.heads[i][0]):
+            th, rh = self.heads[i]
+            before = time_s < self.spans[i][0]
+            if before.any():
+                out[before] = np.column_stack([np.interp(time_s[before], th, rh[:, j]) for j in range(rh.shape[1])])
+        return out
+
     def waveform(self, params: dict, flow: float, freq: float, time_s: np.ndarray) -> tuple[np.ndarray, bool]:
         """Correction (T, 6) for a run, and whether its parameters matched a reference run exactly."""
         key = _key(params, flow)
         exact = key in self.keys
         i = self.keys.index(key) if exact else int(np.argmin(((self.vectors - _vector(params, flow)) ** 2).sum(1)))
-        c = self.coefs[i]
-        k = (c.shape[0] // (self.envelope_degree + 1) - 1) // 2
-        # the waveform is a function of the stroke phase; a neighbour of another frequency keeps its shape
-        f = freq if np.isfinite(freq) and freq > 0 else self.freq[i]
-        return _basis(time_s, f, k, self.envelope_degree, self.spans[i]) @ c, exact
+        return self.curve(i, freq, time_s), exact
 
     def flow_sensitivity(self, params: dict, flow: float, freq: float, time_s: np.ndarray) -> np.ndarray | None:
         """``U d(waveform)/dU`` at this run's flow, from the reference runs of its parameters at other speeds.
@@ -88,13 +108,7 @@ class ReferenceCorrection:
         if len(idx) < 2:
             return None
         us = np.array([float(self.keys[i].split("|U=")[1]) for i in idx])
-        ws = []
-        for i in idx:
-            c = self.coefs[i]
-            k = (c.shape[0] // (self.envelope_degree + 1) - 1) // 2
-            f = freq if np.isfinite(freq) and freq > 0 else self.freq[i]
-            ws.append(_basis(time_s, f, k, self.envelope_degree, self.spans[i]) @ c)
-        w = np.stack(ws)                                   # (n_speeds, T, 6)
+        w = np.stack([self.curve(i, freq, time_s) for i in idx])                                   # (n_speeds, T, 6)
         deg = 2 if len(set(us.round(6))) >= 3 else 1
         v = np.vander(us, deg + 1)
         coef = np.linalg.lstsq(v, w.reshape(len(us), -1), rcond=None)[0].reshape(deg + 1, *w.shape[1:])
@@ -113,17 +127,10 @@ class ReferenceCorrection:
         offsets: dict[int, np.ndarray] = {}
         flows: dict[int, np.ndarray] = {}
         for i, r in enumerate(campaign.runs):
-            moving = r.time_s >= 0
             freq = float(r.params.get("frequency_hz", np.nan))
-            w, exact = self.waveform(dict(r.params), float(r.flow_speed_mps), freq, r.time_s[moving])
-            off = np.zeros((len(r.time_s), 6))
-            off[moving] = w
-            offsets[i] = off
-            g = self.flow_sensitivity(dict(r.params), float(r.flow_speed_mps), freq, r.time_s[moving])
-            dg = np.zeros((len(r.time_s), 6))
-            if g is not None:
-                dg[moving] = g
-            flows[i] = dg
+            offsets[i], exact = self.waveform(dict(r.params), float(r.flow_speed_mps), freq, r.time_s)
+            g = self.flow_sensitivity(dict(r.params), float(r.flow_speed_mps), freq, r.time_s)
+            flows[i] = np.zeros((len(r.time_s), 6)) if g is None else g
             self.matched += int(exact)
             self.nearest += int(not exact)
         def padded(rs, table):
@@ -170,8 +177,13 @@ def _basis(t: np.ndarray, f: float, k: int, degree: int, span) -> np.ndarray:
 
 def learn_reference(frame, model, lowpass, fit_settings, data_settings: DataSettings | None = None,
                     cutoff_hz: float = 6.0, max_harmonics: int = 12, envelope_degree: int = 3,
-                    source: str = "reference campaign") -> ReferenceCorrection:
-    """The base model's stroke-locked misfit on every run of a reference campaign."""
+                    source: str = "reference campaign", shrink: bool = True) -> ReferenceCorrection:
+    """The base model's stroke-locked misfit on every run of a reference campaign.
+
+    ``shrink``: each harmonic's fitted waveform is shrunk towards zero by the share of its power
+    that the reference's own noise would put there (:func:`_shrunk_fit`, noise from the rest
+    stretches); without it the reference's noise rides on the corrected model.
+    """
     import dataclasses
 
     from workbench.diagnose.chain import Configuration
@@ -182,7 +194,8 @@ def learn_reference(frame, model, lowpass, fit_settings, data_settings: DataSett
     problem = Problem(campaign, model, lowpass, fit_settings)
     base = problem.fit(Configuration(), names=[])
     runs = run_residuals(problem, Configuration(), base)
-    keys, vecs, freqs, coefs, spans = [], [], [], [], []
+    psd = noise_psd(runs) if shrink else None
+    keys, vecs, freqs, coefs, spans, heads = [], [], [], [], [], []
     sse = np.zeros(6)
     sst = np.zeros(6)
     for r, rm in zip(runs, campaign.runs, strict=False):
@@ -194,13 +207,15 @@ def learn_reference(frame, model, lowpass, fit_settings, data_settings: DataSett
         span = (float(t.min()), float(t.max()))
         x = _basis(t, f, k, envelope_degree, span)
         e = r.resid[r.fit]
-        c, *_ = np.linalg.lstsq(x, e, rcond=None)
+        c = _shrunk_fit(x, e, f, k, envelope_degree + 1, psd)
         params = dict(rm.params)
         keys.append(_key(params, r.flow))
         vecs.append(_vector(params, r.flow))
         freqs.append(f)
         coefs.append(c)
         spans.append(span)
+        head = r.time_s < span[0]
+        heads.append((r.time_s[head], r.resid[head]))
         sse += ((e - x @ c) ** 2).sum(0)
         sst += (e ** 2).sum(0)
     if not keys:
@@ -209,4 +224,72 @@ def learn_reference(frame, model, lowpass, fit_settings, data_settings: DataSett
 
     share = {ch: float(1 - sse[i] / sst[i]) if sst[i] > 0 else 0.0 for i, ch in enumerate(WRENCH_CHANNELS)}
     return ReferenceCorrection(campaign.campaign_id, keys, np.array(vecs), np.array(freqs), coefs,
-                               max_harmonics, envelope_degree, np.array(spans), share)
+                               max_harmonics, envelope_degree, np.array(spans), heads, share)
+
+
+def noise_psd(runs, quiet_before_s: float = 0.25, min_ticks: int = 24):
+    """The rig's noise spectrum per channel from the reference's rest stretches (the leg at rest).
+
+    Each run's residual over its rest ticks (until ``quiet_before_s`` before the first trigger
+    edge: the zero-phase low-pass smears the start of the motion back in time) is detrended,
+    Hann-windowed and its periodogram, normalised so that white noise of variance s^2 gives s^2
+    (the variance of the noise along one unit-norm sinusoid), averaged over runs. Returns
+    ``psd(freq_hz) -> (6,)`` or None when no run has ``min_ticks`` rest ticks.
+    """
+    segs = []
+    dt = None
+    for r in runs:
+        quiet = r.rest & (r.time_s < -quiet_before_s)
+        if quiet.sum() >= min_ticks:
+            segs.append(r.resid[quiet])
+            dt = r.dt_s
+    if not segs:
+        return None
+    n = min(len(x) for x in segs)
+    w = np.hanning(n + 2)[1:-1]
+    nfft = 4 * int(2 ** np.ceil(np.log2(n)))
+    acc = 0.0
+    tt = np.arange(n)
+    for x in segs:
+        x = x[-n:]
+        x = x - np.polynomial.polynomial.polyval(tt, np.polynomial.polynomial.polyfit(tt, x, 1)).T
+        acc = acc + np.abs(np.fft.rfft(w[:, None] * x, nfft, axis=0)) ** 2
+    # detrending removes two directions of n: scale the mean back to the noise's level
+    p = acc / len(segs) / np.sum(w * w) * n / max(n - 2, 1)
+    freqs = np.fft.rfftfreq(nfft, dt)
+    # a few independent estimates per frequency: smooth over about one resolution width
+    half = max(1, int(round(0.5 / (n * dt) / (freqs[1] - freqs[0]))))
+    ker = np.ones(2 * half + 1) / (2 * half + 1)
+    p = np.column_stack([np.convolve(np.pad(p[:, c], half, mode="reflect"), ker, mode="valid")
+                         for c in range(p.shape[1])])
+
+    def psd(freq_hz: float) -> np.ndarray:
+        return np.array([np.interp(freq_hz, freqs, p[:, c]) for c in range(p.shape[1])])
+
+    return psd
+
+
+def _shrunk_fit(x: np.ndarray, e: np.ndarray, f: float, k: int, m: int, psd) -> np.ndarray:
+    """Coefficients of ``e`` (N, 6) on the basis ``x``, each harmonic's part shrunk by its noise share.
+
+    The waveform learned on the reference carries the reference's noise into the corrected
+    model; a filter-stage effect fitted on that model (a mount mode's gain at resonance, a
+    crosstalk) is then biased towards attenuation, as any regression on a noisy regressor is. On
+    an orthonormal basis of the columns (harmonic by harmonic, ``m`` envelopes each for cos and
+    sin), harmonic j's part ``a_j`` is multiplied by ``max(0, 1 - 2 m s_j / |a_j|^2)`` per
+    channel (positive-part James-Stein), ``s_j`` the noise's power along one direction at
+    ``j f`` (:func:`noise_psd`): a harmonic that stands far above the noise is kept, one at the
+    noise's level is dropped. The mean and its envelopes (static misfit, settling) are kept.
+    """
+    if psd is None:
+        c, *_ = np.linalg.lstsq(x, e, rcond=None)
+        return c
+    q, _ = np.linalg.qr(x)
+    a = q.T @ e
+    for j in range(1, k + 1):
+        rows = slice((2 * j - 1) * m, (2 * j + 1) * m)
+        power = (a[rows] ** 2).sum(axis=0)
+        share = np.clip(1.0 - 2 * m * psd(j * f) / np.maximum(power, 1e-300), 0.0, 1.0)
+        a[rows] *= share
+    c, *_ = np.linalg.lstsq(x, q @ a, rcond=None)
+    return c
