@@ -61,8 +61,7 @@ KNOWN_OUTPUTS: dict[str, frozenset[str]] = {
     "fit-drag": frozenset({"drag.json", "drag.md", "drag.png"}),
     "simulate": frozenset({"trajectory.parquet", "paths.png", "summary.json"}),
     "sensitivity": frozenset({"sensitivity.json", "sensitivity.png"}),
-    "evaluate": frozenset({"prediction_a.png", "prediction_b.png", "prediction_c.png", "prediction_d.png",
-                           "mse_boxplot.png"}),
+    "evaluate": frozenset({*(f"prediction_{c}.png" for c in "abcdefgh"), "mse_boxplot.png"}),
     # a virtual campaign or trials folder: truth.json is what tells it from a real one
     "virtual-lab": frozenset({"campaign.toml", "trials.toml", "runs", "videos", "truth.json"}),
 }
@@ -79,7 +78,7 @@ _MODULE_VERBS = {
     "workbench.virtual_lab.pool": "virtual-lab",
 }
 
-_OURS = re.compile(r"^\.(?P<name>.+)\.wb(?P<pid>\d+)-[0-9a-f]{8}\.(?P<kind>tmp|part|old)(?:\..*)?$")
+_OURS = re.compile(r"^\.(?P<name>.+)\.wb(?P<pid>\d+)-[0-9a-f]{8}\.(?P<kind>tmp|part|old|set)(?:\..*)?$")
 
 
 def _output_error(fault: str, path: Path, hint: str | None = None):
@@ -224,7 +223,9 @@ def sweep(folder: str | Path, target_name: str | None = None, *, now: float | No
     Ours are recognised by name (``.<name>.wb<pid>-<hex8>.(tmp|part|old)``) and removed when their
     process is gone or they are older than :data:`STALE_AFTER_S`. With ``target_name``, temporaries of
     the older naming for that target (``.<target>.<8 chars>[suffix]``, ``.<target>.old-<pid>``) older
-    than :data:`LEGACY_STALE_AFTER_S` go too.
+    than :data:`LEGACY_STALE_AFTER_S` go too. Before anything is removed, what a killed writer left half
+    swapped is completed (:func:`_recover`): a file set whose journal was written is rolled forward, and a
+    folder swapped out (``.old``) whose replacement never arrived is put back.
     """
     folder = Path(folder)
     now = time.time() if now is None else now
@@ -236,6 +237,7 @@ def sweep(folder: str | Path, target_name: str | None = None, *, now: float | No
     legacy = None
     if target_name:
         legacy = re.compile(r"^\." + re.escape(target_name) + r"\.(?:[a-z0-9_]{8}(?:\..*)?|old-\d+)$")
+    entries = _recover(folder, entries)
     for e in entries:
         if not e.name.startswith("."):
             continue
@@ -250,6 +252,76 @@ def sweep(folder: str | Path, target_name: str | None = None, *, now: float | No
             _remove(Path(e.path))
             removed.append(Path(e.path))
     return removed
+
+
+def _dead(m: re.Match) -> bool:
+    return not _alive(int(m.group("pid")))
+
+
+def _recover(folder: Path, entries: list) -> list:
+    """Complete what dead writers left half swapped in ``folder``; return the folder's entries after it.
+
+    * a file-set journal (``.<verb>.wb<pid>-<hex>.set``, :func:`atomic_files`): the set was committed,
+      so its remaining temporaries are renamed over their targets and the journal removed;
+    * a folder swapped out (``.<name>.wb<pid>-<hex>.old``) while ``<name>`` is missing: the kill came
+      between the two renames of :func:`atomic_dir`'s fallback swap; the old folder is put back.
+    """
+    def rescan() -> list:
+        _fsync_dir(folder)
+        try:
+            return list(os.scandir(folder))
+        except OSError:
+            return []
+
+    journals = [e for e in entries if (m := _OURS.match(e.name)) and m.group("kind") == "set" and _dead(m)]
+    for e in journals:  # first: a committed set moves its folders aside and in
+        _roll_forward(folder, Path(e.path))
+    if journals:
+        entries = rescan()
+    restored = False
+    for e in entries:
+        m = _OURS.match(e.name)
+        if m and m.group("kind") == "old" and _dead(m) and not os.path.lexists(folder / m.group("name")):
+            try:
+                os.replace(e.path, folder / m.group("name"))
+                restored = True
+            except OSError:
+                pass
+    return rescan() if restored else entries
+
+
+def _roll_forward(folder: Path, journal: Path) -> None:
+    """Complete a committed set: rename what is left of it into place (each step can be repeated)."""
+    try:
+        doc = json.loads(journal.read_text(encoding="utf-8"))
+        moves, dirs = dict(doc["files"]), dict(doc.get("dirs", {}))
+    except (OSError, ValueError, KeyError, TypeError):
+        journal.unlink(missing_ok=True)  # never whole (it is renamed into place): nothing was committed
+        return
+    for name, part in dirs.items():  # a folder: the old one moves aside, the new one in (part: always the new)
+        src, dst = folder / part, folder / name
+        if "/" in name or "/" in part or not src.is_dir():
+            continue
+        old = None
+        if os.path.lexists(dst):
+            old = _tmp_name(dst, "old")
+            os.replace(dst, old)
+        os.replace(src, dst)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    for name, tmp in moves.items():
+        src = folder / tmp
+        if os.path.lexists(src) and "/" not in name and "/" not in tmp:
+            os.replace(src, folder / name)
+    if doc.get("record"):
+        name, text = doc["record"]
+        tmp = _tmp_name(folder / name, "tmp")
+        tmp.write_text(text, encoding="utf-8")
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, folder / name)
+    _fsync_dir(folder)
+    journal.unlink(missing_ok=True)
+    _fsync_dir(folder)
 
 
 _swept: set[str] = set()
@@ -332,9 +404,14 @@ def write_text(target: str | Path, text: str) -> None:
     write_bytes(target, text.encode("utf-8"))
 
 
+def json_text(obj: Any) -> str:
+    """Pretty JSON with a trailing newline, as :func:`write_json` writes it (numpy values and paths allowed)."""
+    return json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n"
+
+
 def write_json(target: str | Path, obj: Any) -> None:
     """Atomically write pretty JSON with a trailing newline."""
-    write_text(target, json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n")
+    write_text(target, json_text(obj))
 
 
 def _json_default(o: Any):
@@ -353,12 +430,14 @@ def _json_default(o: Any):
 
 
 @contextmanager
-def atomic_dir(target: str | Path, verb: str | None = None) -> Iterator[Path]:
+def atomic_dir(target: str | Path, verb: str | None = None, *, marker: bool = True) -> Iterator[Path]:
     """Build a folder in a hidden sibling and swap it in whole on success (the old one stays on failure).
 
     ``target`` must be new, empty, or this verb's earlier output (:func:`may_replace`); it must not lie
     inside a raw folder. The new folder gets :data:`MARKER` and the umask's permissions; a DVC-written
     ``.gitignore`` of the old folder is carried over. ``verb`` defaults to :func:`current_verb`.
+    ``marker=False``: no marker (a folder DVC shows as plots, where every file is drawn); the folder is
+    then recognised as the verb's by its names (:data:`KNOWN_OUTPUTS`), which must all be known ones.
     """
     target = Path(target)
     verb = verb or current_verb()
@@ -374,19 +453,140 @@ def atomic_dir(target: str | Path, verb: str | None = None) -> Iterator[Path]:
             src = target / name
             if src.is_file() and not (tmp / name).exists():
                 shutil.copy2(src, tmp / name)
-        marker = tmp / MARKER
-        marker.write_text(json.dumps(_marker_doc(verb), indent=2) + "\n", encoding="utf-8")
-        os.chmod(marker, 0o666 & ~_umask())
+        if marker:
+            marker_file = tmp / MARKER
+            marker_file.write_text(json.dumps(_marker_doc(verb), indent=2) + "\n", encoding="utf-8")
+            os.chmod(marker_file, 0o666 & ~_umask())
         os.chmod(tmp, 0o777 & ~_umask())
         _fsync_dir(tmp)
         old = None
-        if target.exists():
-            old = _tmp_name(target, "old")
-            os.replace(target, old)
-        os.replace(tmp, target)
+        if target.exists() and not _exchange(tmp, target):  # one atomic swap: tmp now holds the old folder
+            old = _tmp_name(target, "old")  # no exchange here: two renames; a kill between them is put right
+            os.replace(target, old)         # by the next sweep of this folder (the old folder goes back)
+        if old is not None or not target.exists():
+            os.replace(tmp, target)
         _fsync_dir(target.parent)
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``); False where unsupported."""
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+    import errno
+
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):  # a libc without it (glibc < 2.28, musl)
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    fn.restype = ctypes.c_int
+    at_fdcwd, rename_exchange = -100, 2
+    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):  # the file system cannot
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+# -- sets of files in a shared folder --------------------------------------------------------------------
+
+
+def set_record_name(set_name: str) -> str:
+    """The hidden record naming the files of one set (a verb's, or ``<verb>-<what>``) in a shared folder."""
+    return f".workbench-set-{set_name}.json"
+
+
+def read_set_record(folder: str | Path, set_name: str) -> dict | None:
+    """The record of set ``set_name`` in ``folder`` (its ``files`` are that set's), or None."""
+    try:
+        doc = json.loads((Path(folder) / set_record_name(set_name)).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) and isinstance(doc.get("files"), list) else None
+
+
+def _check_files_replaceable(folder: Path, names: list[str], dirs: list[str], verb: str, set_name: str,
+                             recognise) -> None:
+    marker = read_marker(folder)
+    if marker is not None and marker.get("verb") != verb:
+        raise _output_error(f"is the output folder of `workbench {marker.get('verb')}`; `workbench {verb}` "
+                            "does not write into it", folder, "choose another --out")
+    listed = set((read_set_record(folder, set_name) or {}).get("files", []))
+    for name in names:
+        p = folder / name
+        if not os.path.lexists(p) or name in listed:
+            continue
+        if p.is_symlink() or not p.is_file() or recognise is None or not recognise(p):
+            raise _output_error(f"exists and was not written by `workbench {verb}`", p,
+                                "choose another --out or remove it")
+    for name in dirs:
+        check_replaceable(folder / name, verb)
+
+
+@contextmanager
+def atomic_files(folder: str | Path, names: list[str] | tuple[str, ...], verb: str | None = None, *,
+                 dirs: list[str] | tuple[str, ...] = (), set_name: str | None = None,
+                 recognise=None) -> Iterator[dict[str, Path]]:
+    """Write several files (and folders) into a folder other outputs share, as one set: all new or all old.
+
+    Yields ``{name: temporary path}`` for each file of ``names`` (an empty file) and each folder of
+    ``dirs`` (an empty folder, given :data:`MARKER` like :func:`atomic_dir`); write them. On success
+    the set is committed by a journal (``.<set>.wb<pid>-<hex>.set``, renamed into place whole), then
+    each is renamed over its target. A kill before the journal leaves the old set (the temporaries
+    are swept); a kill after it is rolled forward by the next write into the folder (:func:`sweep`):
+    the new set, whole. The set's record (:func:`set_record_name`, ``set_name`` defaults to the
+    verb) lists its files, so the next run may replace them; a file of one of those names that the
+    record does not list is replaced only when ``recognise(path)`` says it is this verb's (written
+    before records existed), otherwise refused with a one-line error; folders as :func:`atomic_dir`.
+    """
+    folder = Path(folder)
+    verb = verb or current_verb()
+    set_name = set_name or verb
+    names, dirs = list(names), list(dirs)
+    check_not_raw(folder / (names + dirs)[0])
+    folder.mkdir(parents=True, exist_ok=True)
+    sweep(folder)  # completes a set a killed run committed, removes dead temporaries
+    _check_files_replaceable(folder, names, dirs, verb, set_name, recognise)
+    tmps = {n: _tmp_name(folder / n, "tmp") for n in names}
+    parts = {n: _tmp_name(folder / n, "part") for n in dirs}
+    journal_tmp = _tmp_name(folder / set_name, "tmp")
+    try:
+        for t in tmps.values():
+            os.close(os.open(t, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        for t in parts.values():
+            t.mkdir(mode=0o700)
+        yield {**tmps, **parts}
+        for name, t in parts.items():
+            check_replaceable(folder / name, verb)  # it may have appeared (or changed hands) while we worked
+            (t / MARKER).write_text(json.dumps(_marker_doc(verb), indent=2) + "\n", encoding="utf-8")
+            for p in (t / MARKER, t):
+                os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~_umask())
+            _fsync_dir(t)
+        for t in tmps.values():
+            with open(t, "rb+") as fh:
+                os.fsync(fh.fileno())
+            os.chmod(t, 0o666 & ~_umask())
+        record = json.dumps({**_marker_doc(verb), "files": sorted(names + dirs)}, indent=2) + "\n"
+        journal_tmp.write_text(json.dumps({"files": {n: t.name for n, t in tmps.items()},
+                                           "dirs": {n: t.name for n, t in parts.items()},
+                                           "record": [set_record_name(set_name), record]}), encoding="utf-8")
+        with open(journal_tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        journal = _tmp_name(folder / set_name, "set")
+        os.replace(journal_tmp, journal)  # the commit: from here the new set wins, even after a kill
+        _fsync_dir(folder)
+        _roll_forward(folder, journal)
+    finally:
+        for t in (*tmps.values(), journal_tmp):
+            if t.exists():
+                t.unlink()
+        for t in parts.values():
+            if t.exists():
+                shutil.rmtree(t, ignore_errors=True)

@@ -217,3 +217,124 @@ def test_diagnose_out_named_like_the_campaign_beside_it_keeps_the_campaign(raw_c
     assert "was not written by `workbench diagnose`" in capsys.readouterr().err
     assert tree_hash(raw_campaign) == before
     assert not [p for p in raw_campaign.parent.iterdir() if p.name.startswith(".")]
+
+
+# -- killed in the middle of a swap (the kill planted at the exact step, in a child process) ---------------
+
+
+def _child_killed_at(tmp_path: Path, code: str) -> None:
+    """Run ``code`` in a child process that SIGKILLs itself at the planted step; it must die by SIGKILL."""
+    script = tmp_path / "child.py"
+    script.write_text("import os, signal\nfrom pathlib import Path\nfrom workbench import atomic\n"
+                      "def die():\n    os.kill(os.getpid(), signal.SIGKILL)\n" + code)
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == -9, r.stderr
+
+
+def _write_set(folder: Path, tag: str) -> None:
+    with atomic.atomic_files(folder, ["a.md", "b.html", "c.json"], "report") as tmp:
+        for name, t in tmp.items():
+            t.write_text(f"{tag} {name}")
+
+
+def _set_of(folder: Path) -> set[str]:
+    return {(folder / n).read_text().split()[0] for n in ("a.md", "b.html", "c.json")}
+
+
+@pytest.mark.parametrize("renamed", [0, 1, 2, 3])
+def test_a_file_set_killed_after_its_commit_is_rolled_forward_by_the_next_write(tmp_path, renamed):
+    """Killed after the journal with 0..3 of the set renamed (3: before its record): the next sweep completes it."""
+    out = tmp_path / "reports"
+    _write_set(out, "old")
+    (out / "other").mkdir()
+    (out / "other" / "fig.png").write_text("another verb's")
+    _child_killed_at(tmp_path, f"""
+real, n = os.replace, [0]
+def replace(src, dst):
+    if str(dst).endswith(('a.md', 'b.html', 'c.json', 'set-report.json')):
+        if n[0] == {renamed}:
+            die()
+        n[0] += 1
+    real(src, dst)
+atomic.os.replace = replace
+with atomic.atomic_files(Path({str(out)!r}), ['a.md', 'b.html', 'c.json'], 'report') as tmp:
+    for name, t in tmp.items():
+        t.write_text('new ' + name)
+""")
+    assert len(list(out.glob(".report.wb*.set"))) == 1  # committed: the journal is there
+    assert _set_of(out) == [{"old"}, {"old", "new"}, {"old", "new"}, {"new"}][renamed]
+    atomic.sweep(out)                                      # what the next write into the folder does first
+    assert _set_of(out) == {"new"} and atomic.read_set_record(out, "report")["files"] == ["a.md", "b.html", "c.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".workbench-set-report.json", "a.md", "b.html", "c.json", "other"]
+    assert (out / "other" / "fig.png").read_text() == "another verb's"
+
+
+def test_a_file_set_killed_before_its_commit_keeps_the_old_set(tmp_path):
+    out = tmp_path / "reports"
+    _write_set(out, "old")
+    _child_killed_at(tmp_path, f"""
+with atomic.atomic_files(Path({str(out)!r}), ['a.md', 'b.html', 'c.json'], 'report') as tmp:
+    for name, t in tmp.items():
+        t.write_text('new ' + name)
+    die()
+""")
+    assert _set_of(out) == {"old"}
+    _write_set(out, "third")
+    assert _set_of(out) == {"third"} and sorted(p.name for p in out.iterdir()) == [
+        ".workbench-set-report.json", "a.md", "b.html", "c.json"]
+
+
+def test_a_folder_swap_killed_between_its_two_renames_gets_the_old_folder_back(tmp_path):
+    """Where the file system cannot exchange two names, the swap is two renames; a kill between them is mended."""
+    out = tmp_path / "drag"
+    with atomic.atomic_dir(out, verb="fit-drag") as tmp:
+        (tmp / "drag.json").write_text("old")
+    _child_killed_at(tmp_path, f"""
+atomic._exchange = lambda a, b: False
+real = os.replace
+def replace(src, dst):
+    real(src, dst)
+    if str(dst).endswith('.old'):
+        die()
+atomic.os.replace = replace
+with atomic.atomic_dir(Path({str(out)!r}), verb='fit-drag') as tmp:
+    (tmp / 'drag.json').write_text('new')
+""")
+    assert not out.exists() and len(list(tmp_path.glob(".drag.wb*.old"))) == 1
+    atomic.sweep(tmp_path)  # any later write into the parent folder
+    assert (out / "drag.json").read_text() == "old" and atomic.read_marker(out)["verb"] == "fit-drag"
+    assert not list(tmp_path.glob(".drag.wb*"))
+
+
+def test_a_folder_is_swapped_in_one_step_where_the_file_system_can(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    (a / "x").write_text("a")
+    if not atomic._exchange(a, b):
+        pytest.skip("this file system cannot exchange two names (renameat2)")
+    assert (b / "x").read_text() == "a" and not (a / "x").exists()
+
+
+def test_report_refuses_files_it_did_not_write_and_other_verbs_folders(tmp_path, capsys):
+    ds = tmp_path / "datasets"
+    ds.mkdir()
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "report.md").write_text("# My own report\nprecious")
+    assert main(["report", "--datasets", str(ds), "--out", str(notes), "--no-mlflow"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) <= 2 and "report.md" in err and "not written by `workbench report`" in err
+    assert (notes / "report.md").read_text() == "# My own report\nprecious" and len(list(notes.iterdir())) == 1
+    gaits = tmp_path / "gaits"
+    with atomic.atomic_dir(gaits, verb="optimize") as tmp:
+        (tmp / "best.csv").write_text("x")
+    assert main(["report", "--datasets", str(ds), "--out", str(gaits), "--no-mlflow"]) == 2
+    assert "output folder of `workbench optimize`" in capsys.readouterr().err
+    # its own earlier set and a report from before set records are replaced
+    rep = tmp_path / "rep"
+    rep.mkdir()
+    (rep / "report.md").write_text("# Workbench report\n\nold")
+    assert main(["report", "--datasets", str(ds), "--out", str(rep), "--no-mlflow"]) == 0
+    assert main(["report", "--datasets", str(ds), "--out", str(rep), "--no-mlflow"]) == 0
+    assert atomic.read_set_record(rep, "report")["files"] == ["headline.json", "report.html", "report.md"]

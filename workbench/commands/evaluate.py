@@ -81,7 +81,7 @@ def evaluate_to_files(*, data, split_path, out, figures, model, also, options, m
     import json
     from pathlib import Path
 
-    from workbench.atomic import atomic_path, write_json
+    from workbench.atomic import atomic_dir, write_json
     from workbench.errors import ContractError
     from workbench.hydro.legmodel import load_leg_model
     from workbench.learn.evaluate import evaluate_models, prediction_figures
@@ -133,10 +133,11 @@ def evaluate_to_files(*, data, split_path, out, figures, model, also, options, m
         figs.append(mse_boxplot(metrics, options.get("boxplot_channels", ("fy_n", "fz_n", "tx_nm"))))
         names.append("mse_boxplot.png")
         folder = Path(figures)
-        for fig, name in zip(figs, names, strict=False):
-            with atomic_path(folder / name, suffix=".png") as tmp:
-                fig.savefig(tmp, dpi=110, format="png")
-            written.append(folder / name)
+        # the figures are one set, swapped in together; no marker file: DVC draws every file of this plots folder
+        with atomic_dir(folder, verb="evaluate", marker=False) as tmp:
+            for fig, name in zip(figs, names, strict=False):
+                fig.savefig(tmp / name, dpi=110, format="png")
+        written = [folder / name for name in names[:len(figs)]]
         lines.append(f"figures: {', '.join(str(p) for p in written)}")
     if mlflow_log:
         lines.append(_log_evaluation(metrics, ratios, models["lstm"], table, out, written, options, dvc_stage,

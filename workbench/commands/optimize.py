@@ -91,7 +91,7 @@ def run(args) -> int:
     from dataclasses import asdict
     from pathlib import Path
 
-    from workbench.atomic import atomic_dir, write_json
+    from workbench.atomic import atomic_files, json_text
     from workbench.console import info
     from workbench.errors import ContractError
     from workbench.gait.config import load_config
@@ -145,17 +145,20 @@ def run(args) -> int:
                   "f3": float(f[2]), "score": float(s), "converged": bool(ok)}
                   for x, f, s, ok in zip(outcome.result.x, outcome.result.f, outcome.result.s,
                                          outcome.result.converged, strict=True)]
-    with atomic_dir(folder) as tmp:
-        (tmp / "controller.json").write_text(_json(outcome.controller_doc), encoding="utf-8")
-        (tmp / "best.csv").write_text(_csv(outcome.table), encoding="utf-8")
-        (tmp / "history.csv").write_text(_csv(history), encoding="utf-8")
-        (tmp / "population.csv").write_text(_csv(population), encoding="utf-8")
-        for name, png in outcome.pngs.items():
-            (tmp / name).write_bytes(png)
     metrics_path = out / f"{stem}.metrics.json"
     gaits_path = out / f"{stem}.json"
-    write_json(metrics_path, m)
-    write_json(gaits_path, outcome.gait_doc)  # the contract file last: it appears only when all else is there
+    # the folder and the two files beside it are one set: all three from this run or all from the last
+    with atomic_files(out, [metrics_path.name, gaits_path.name], "optimize", dirs=[stem], set_name=f"optimize-{stem}",
+                      recognise=_ours) as tmp:
+        part = tmp[stem]
+        (part / "controller.json").write_text(_json(outcome.controller_doc), encoding="utf-8")
+        (part / "best.csv").write_text(_csv(outcome.table), encoding="utf-8")
+        (part / "history.csv").write_text(_csv(history), encoding="utf-8")
+        (part / "population.csv").write_text(_csv(population), encoding="utf-8")
+        for name, png in outcome.pngs.items():
+            (part / name).write_bytes(png)
+        tmp[metrics_path.name].write_text(json_text(m), encoding="utf-8")
+        tmp[gaits_path.name].write_text(json_text(outcome.gait_doc), encoding="utf-8")
     check = (f"re-simulated objectives within {m['resim_max_rel_diff']:.1e}" if m.get("resim_max_rel_diff") is not None
              else f"best {m['verified_direct']} re-swum with the direct rollout in {m['verify_seconds']:.1f} s "
                   f"(tabulated S within {m['verify_max_rel_diff_score']:.2%})")
@@ -209,6 +212,16 @@ def _campaigns(model, drag_source: str) -> list[str]:
             source = None
         ids.append(Path(source).stem if source else Path(drag_json).parent.name)
     return ids
+
+
+def _ours(path) -> bool:
+    """A gait or metrics file written before set records existed: a JSON object naming its task."""
+    import json
+
+    try:
+        return '"task"' in path.read_text(encoding="utf-8")[:4096] and isinstance(json.loads(path.read_text()), dict)
+    except (OSError, ValueError):
+        return False
 
 
 def _json(obj) -> str:

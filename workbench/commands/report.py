@@ -26,8 +26,22 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+#: the report's outputs: one set in a folder other verbs' outputs share (datasets/reports)
+OUTPUTS = ("report.md", "report.html", "headline.json")
+
+
+def _ours(path) -> bool:
+    """A report file written before set records existed (recognised by its head)."""
+    head = path.read_bytes()[:400].decode("utf-8", "replace")
+    if path.name == "report.md":
+        return head.startswith("# Workbench report")
+    if path.name == "report.html":
+        return head.startswith("<!doctype html>") and "<title>Workbench report</title>" in head
+    return head.lstrip().startswith("{")  # headline.json: the loop's numbers
+
+
 def run(args) -> int:
-    """Write report.html and report.md atomically."""
+    """Write report.md, report.html and headline.json as one set (workbench.atomic.atomic_files)."""
     from pathlib import Path
 
     from workbench import atomic, report
@@ -36,11 +50,12 @@ def run(args) -> int:
 
     datasets = Path(args.datasets) if args.datasets else datasets_dir()
     out = Path(args.out) if args.out else datasets / "reports"
-    out.mkdir(parents=True, exist_ok=True)
     sections = report.collect(datasets, args.tracking_uri, args.ui_url, with_mlflow=not args.no_mlflow)
-    atomic.write_text(out / "report.md", report.render_markdown(sections, out))
-    atomic.write_text(out / "report.html", report.render_html(sections, out))
-    atomic.write_json(out / "headline.json", report.headline(datasets))
+    texts = {"report.md": report.render_markdown(sections, out), "report.html": report.render_html(sections, out),
+             "headline.json": atomic.json_text(report.headline(datasets))}
+    with atomic.atomic_files(out, OUTPUTS, "report", recognise=_ours) as tmp:
+        for name, text in texts.items():
+            tmp[name].write_text(text, encoding="utf-8")
     info(f"wrote {out / 'report.html'}, report.md ({sum(len(s.figures) for s in sections)} figures) and "
-         "headline.json (dvc metrics show datasets/reports/headline.json)")
+         "headline.json (dvc metrics show datasets/reports/headline.json) as one set")
     return 0
