@@ -3,7 +3,7 @@
 Every verb reads its knobs the same way::
 
     from workbench.params import load_settings
-    settings = load_settings(DragFitParams, args.params, "fit", default="pipelines/drag.yaml")
+    settings = load_settings(DragFitSettings, args.params, "fit", default="pipelines/drag.yaml")
 
 :func:`read_section` finds the file (an explicit ``--params`` file, else the project's default file,
 else built-in defaults) and returns one section, addressed by a dotted key (``optimize.nsga2``).

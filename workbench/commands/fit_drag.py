@@ -35,17 +35,17 @@ def register(sub) -> None:
 
 
 def _load_fit_params(path: str):
-    from workbench.hydro.drag import DragFitParams
+    from workbench.hydro.drag import DragFitSettings
     from workbench.params import load_settings
 
-    return load_settings(DragFitParams, path, "fit", default="pipelines/drag.yaml")
+    return load_settings(DragFitSettings, path, "fit", default="pipelines/drag.yaml")
 
 
 def _load_ingest_params(path: str):
-    from workbench.ingest.params import IngestParams
+    from workbench.ingest.params import IngestSettings
     from workbench.params import load_settings
 
-    return load_settings(IngestParams, path, "ingest", default="pipelines/ingest.yaml")
+    return load_settings(IngestSettings, path, "ingest", default="pipelines/ingest.yaml")
 
 
 def _read(source, skip_bad_runs: bool, ingest_params):

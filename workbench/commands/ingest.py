@@ -45,10 +45,10 @@ def register(sub) -> None:
 
 def load_ingest_params(path: Path | None, **overrides):
     """The ``ingest`` settings: the --params file, else the project's pipelines/ingest.yaml, else defaults."""
-    from workbench.ingest.params import IngestParams
+    from workbench.ingest.params import IngestSettings
     from workbench.params import load_settings
 
-    return load_settings(IngestParams, path, "ingest", default=PARAMS_FILE, overrides=overrides)
+    return load_settings(IngestSettings, path, "ingest", default=PARAMS_FILE, overrides=overrides)
 
 
 def run(args) -> int:

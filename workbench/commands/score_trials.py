@@ -49,9 +49,9 @@ def load_scoring_params(path: Path | None):
     A file without a ``scoring`` section (e.g. one holding only ``pool``) gives the defaults.
     """
     from workbench.params import load_settings
-    from workbench.trials.params import ScoringParams
+    from workbench.trials.params import ScoringSettings
 
-    return load_settings(ScoringParams, path, "scoring", default="pipelines/trials.yaml", required=False)
+    return load_settings(ScoringSettings, path, "scoring", default="pipelines/trials.yaml", required=False)
 
 
 def run(args) -> int:

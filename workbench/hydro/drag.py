@@ -25,7 +25,7 @@ HEADING_CHANNEL = {"forward": "fy_n", "lateral": "fx_n"}
 
 
 @dataclass(frozen=True)
-class PlateauParams:
+class PlateauSettings:
     """How the steady-speed stretch of a run is found (``pipelines/drag.yaml`` fit.plateau)."""
 
     #: median-filter window for the carriage speed (s)
@@ -41,10 +41,10 @@ class PlateauParams:
 
 
 @dataclass(frozen=True)
-class DragFitParams:
+class DragFitSettings:
     """Drag-fit settings (``pipelines/drag.yaml`` section ``fit``)."""
 
-    plateau: PlateauParams = field(default_factory=PlateauParams)
+    plateau: PlateauSettings = field(default_factory=PlateauSettings)
     #: Sokal's window for the integrated autocorrelation time behind a run's standard error
     acf_window_c: float = 5.0
     #: "sem": weight runs by 1/SEM^2; "none": ordinary least squares
@@ -65,11 +65,16 @@ class DragFitParams:
     tare_margin_s: float = 0.5
 
     @classmethod
-    def from_dict(cls, doc: Mapping[str, Any] | None) -> "DragFitParams":
+    def from_dict(cls, doc: Mapping[str, Any] | None) -> "DragFitSettings":
         """From the parsed ``fit`` section (workbench.params: unknown keys, wrong types are a ParamsError)."""
         from workbench.params import build
 
         return build(cls, doc, key="fit")
+
+
+#: the names before issue 17 (settings classes end in ``Settings``); kept for existing imports
+DragFitParams = DragFitSettings
+PlateauParams = PlateauSettings
 
 
 @dataclass(frozen=True)
@@ -147,7 +152,7 @@ class DragFit:
     forward: HeadingFit
     lateral: HeadingFit
     skipped: tuple[tuple[str, str], ...]
-    params: DragFitParams
+    params: DragFitSettings
 
     def headings(self) -> tuple[HeadingFit, HeadingFit]:
         """(forward, lateral)."""
@@ -171,7 +176,7 @@ def _finite(x: float) -> float | None:
 
 
 # -- plateau and run means ---------------------------------------------------------------------
-def _smooth_speed(t: np.ndarray, v: np.ndarray, params: PlateauParams) -> np.ndarray:
+def _smooth_speed(t: np.ndarray, v: np.ndarray, params: PlateauSettings) -> np.ndarray:
     """Median-filtered carriage speed (robust to glitches in a differenced position log)."""
     from scipy.ndimage import median_filter
 
@@ -179,7 +184,7 @@ def _smooth_speed(t: np.ndarray, v: np.ndarray, params: PlateauParams) -> np.nda
     return median_filter(v, size=max(1, int(round(params.smooth_s / dt))) | 1, mode="nearest")
 
 
-def steady_window(time_s: np.ndarray, speed_mps: np.ndarray, params: PlateauParams = PlateauParams()
+def steady_window(time_s: np.ndarray, speed_mps: np.ndarray, params: PlateauSettings = PlateauSettings()
                   ) -> tuple[slice | None, float, str]:
     """The steady-speed stretch of one run: (slice of ticks or None, plateau speed, reason if None)."""
     t = np.asarray(time_s, float)
@@ -212,7 +217,7 @@ def steady_window(time_s: np.ndarray, speed_mps: np.ndarray, params: PlateauPara
 
 
 def rest_offset(time_s: np.ndarray, speed_mps: np.ndarray, force: np.ndarray, window: slice,
-                params: DragFitParams) -> tuple[np.ndarray, float] | None:
+                params: DragFitSettings) -> tuple[np.ndarray, float] | None:
     """The load cell's zero over ``window`` and the standard error of its mean there (None: no rest).
 
     The zero is read while the carriage rests before and after the tow. The carriage moves where
@@ -270,7 +275,7 @@ def mean_sem(x: np.ndarray, c: float = 5.0) -> float:
     return float(math.sqrt(acf[0] / n * tau / n))
 
 
-def run_points(frame, headings: Mapping[str, str] | None = None, params: DragFitParams = DragFitParams()
+def run_points(frame, headings: Mapping[str, str] | None = None, params: DragFitSettings = DragFitSettings()
                ) -> tuple[list[RunPoint], list[tuple[str, str]]]:
     """Reduce every run of a processed towing frame to a :class:`RunPoint`; also return skipped runs.
 
@@ -338,7 +343,7 @@ def _distinct_speeds(points: list[RunPoint]) -> int:
     return len(set(keys))
 
 
-def fit_heading(points: list[RunPoint], heading: str, params: DragFitParams = DragFitParams()) -> HeadingFit:
+def fit_heading(points: list[RunPoint], heading: str, params: DragFitSettings = DragFitSettings()) -> HeadingFit:
     """Weighted least squares F = c2 v^2 + c1 v + c0 over one heading's run points.
 
     With ``weighting: sem`` each run weighs 1/SEM^2 and the covariance is scaled by
@@ -380,7 +385,7 @@ def fit_heading(points: list[RunPoint], heading: str, params: DragFitParams = Dr
     return replace(fit, flags=tuple(doubtful(fit, params)))
 
 
-def doubtful(fit: HeadingFit, params: DragFitParams = DragFitParams()) -> list[str]:
+def doubtful(fit: HeadingFit, params: DragFitSettings = DragFitSettings()) -> list[str]:
     """Plain-language flags for a fit that is physically doubtful or poorly supported."""
     flags = []
     c2, c1, c0 = fit.coefficients
@@ -417,7 +422,7 @@ def doubtful(fit: HeadingFit, params: DragFitParams = DragFitParams()) -> list[s
 
 
 def fit_drag(frame, *, headings: Mapping[str, str] | None = None,
-             params: DragFitParams = DragFitParams()) -> DragFit:
+             params: DragFitSettings = DragFitSettings()) -> DragFit:
     """Fit forward and lateral body drag from a processed towing-tank frame (data contract section 3)."""
     points, skipped = run_points(frame, headings, params)
     return DragFit(forward=fit_heading(points, "forward", params), lateral=fit_heading(points, "lateral", params),

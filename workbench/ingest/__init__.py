@@ -17,7 +17,7 @@ from typing import Any, Mapping
 
 from workbench.contract.campaign import check_manifest
 from workbench.ingest.campaign import IngestResult, as_params, ingest_campaign
-from workbench.ingest.params import IngestParams
+from workbench.ingest.params import IngestParams, IngestSettings
 from workbench.ingest.provenance import (
     campaign_hashes,
     is_up_to_date,
@@ -30,6 +30,7 @@ from workbench.ingest.provenance import (
 
 __all__ = [
     "IngestParams",
+    "IngestSettings",
     "IngestResult",
     "ingest_campaign",
     "ingest_to_file",
@@ -42,7 +43,7 @@ __all__ = [
 ]
 
 
-def up_to_date(campaign_dir: str | Path, out: str | Path, params: IngestParams | Mapping[str, Any] | None = None,
+def up_to_date(campaign_dir: str | Path, out: str | Path, params: IngestSettings | Mapping[str, Any] | None = None,
                skip_bad_runs: bool = False) -> bool:
     """Whether ``out`` already holds this campaign's raw files processed with these parameters."""
     out = Path(out)
@@ -55,7 +56,7 @@ def up_to_date(campaign_dir: str | Path, out: str | Path, params: IngestParams |
 
 
 def ingest_to_file(campaign_dir: str | Path, out: str | Path, *,
-                   params: IngestParams | Mapping[str, Any] | None = None, skip_bad_runs: bool = False,
+                   params: IngestSettings | Mapping[str, Any] | None = None, skip_bad_runs: bool = False,
                    force: bool = False, progress=None) -> IngestResult | None:
     """Ingest and write atomically; return None (nothing done) when ``out`` is already up to date.
 

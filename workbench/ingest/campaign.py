@@ -17,7 +17,7 @@ import polars as pl
 from workbench.contract.campaign import Campaign, check_manifest
 from workbench.contract.limits import Limits
 from workbench.errors import CampaignRefused, ContractError, WorkbenchError
-from workbench.ingest.params import IngestParams
+from workbench.ingest.params import IngestSettings
 from workbench.ingest.provenance import campaign_hashes
 from workbench.ingest.run import RunOutput, angle_source, assemble, process_run
 
@@ -30,17 +30,17 @@ class IngestResult:
     quality: dict[str, Any]
     campaign: Campaign
     skipped: list[WorkbenchError] = field(default_factory=list)
-    params: IngestParams = field(default_factory=IngestParams)
+    params: IngestSettings = field(default_factory=IngestSettings)
     #: sha256 of campaign.toml and every raw file the runs name (relative paths)
     hashes: dict[str, str] = field(default_factory=dict)
     skip_bad_runs: bool = False
 
 
-def as_params(params: IngestParams | Mapping[str, Any] | None) -> IngestParams:
-    """Accept an :class:`IngestParams`, a parameter-file section, or None (defaults)."""
-    if isinstance(params, IngestParams):
+def as_params(params: IngestSettings | Mapping[str, Any] | None) -> IngestSettings:
+    """Accept an :class:`IngestSettings`, a parameter-file section, or None (defaults)."""
+    if isinstance(params, IngestSettings):
         return params
-    return IngestParams.from_mapping(params)
+    return IngestSettings.from_mapping(params)
 
 
 def load_manifest(campaign_dir: str | Path, limits: Limits | None = None
@@ -63,14 +63,14 @@ def load_manifest(campaign_dir: str | Path, limits: Limits | None = None
 PARALLEL_MIN_BYTES = 64 * 2 ** 20
 
 
-def _ingest_run(campaign: Campaign, run, params: IngestParams) -> RunOutput | WorkbenchError:
+def _ingest_run(campaign: Campaign, run, params: IngestSettings) -> RunOutput | WorkbenchError:
     try:
         return process_run(campaign, run, params)
     except WorkbenchError as exc:
         return exc
 
 
-def _workers(params: IngestParams, runs) -> int:
+def _workers(params: IngestSettings, runs) -> int:
     if params.workers:
         return min(params.workers, max(1, len(runs)))
     if len(runs) < 4:
@@ -79,7 +79,7 @@ def _workers(params: IngestParams, runs) -> int:
     return 1 if size < PARALLEL_MIN_BYTES else max(1, min(2, os.cpu_count() or 1))
 
 
-def map_runs(campaign: Campaign, runs, params: IngestParams, task: Callable | None = None,
+def map_runs(campaign: Campaign, runs, params: IngestSettings, task: Callable | None = None,
              progress: Callable[[int], None] | None = None) -> list:
     """Apply ``task(campaign, run, params)`` (default: ingest the run) to each run, results in run order.
 
@@ -112,7 +112,7 @@ def map_runs(campaign: Campaign, runs, params: IngestParams, task: Callable | No
             pool.shutdown(cancel_futures=True)
 
 
-def ingest_campaign(campaign_dir: str | Path, *, params: IngestParams | Mapping[str, Any] | None = None,
+def ingest_campaign(campaign_dir: str | Path, *, params: IngestSettings | Mapping[str, Any] | None = None,
                     skip_bad_runs: bool = False, progress: Callable[[int], None] | None = None) -> IngestResult:
     """Ingest a campaign folder into one processed frame (measured rows, ``interpolated`` false).
 
@@ -144,7 +144,7 @@ def _in_manifest_order(campaign: Campaign, errors: list[WorkbenchError]) -> list
 
 
 def build_quality(campaign: Campaign, outputs: list[RunOutput], bad: list[WorkbenchError],
-                  params: IngestParams) -> dict[str, Any]:
+                  params: IngestSettings) -> dict[str, Any]:
     """The campaign's quality report: totals and one record per run (ingested or left out)."""
     records = {o.run_id: o.quality for o in outputs}
     for e in bad:

@@ -10,7 +10,7 @@ from workbench.errors import ParamsError
 
 
 @dataclass(frozen=True)
-class IngestParams:
+class IngestSettings:
     """What ingest does to the raw signals; recorded in the processed file's metadata.
 
     ``workers`` only changes speed, never the result, so it is left out of :meth:`recorded`.
@@ -62,7 +62,7 @@ class IngestParams:
             object.__setattr__(self, "limits", Limits.from_mapping(self.limits))
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, Any] | None) -> "IngestParams":
+    def from_mapping(cls, values: Mapping[str, Any] | None) -> "IngestSettings":
         """Build from a parameter-file section (workbench.params: unknown keys and wrong types are a ParamsError)."""
         from workbench.params import build
 
@@ -74,3 +74,7 @@ class IngestParams:
         d.pop("workers")
         d.pop("limits")
         return d
+
+
+#: the name before issue 17 (settings classes end in ``Settings``); kept for existing imports
+IngestParams = IngestSettings

@@ -23,7 +23,7 @@ from workbench.contract.campaign import Campaign, RunSpec
 from workbench.contract.columns import TUNNEL_MOTION_PARAMS, WRENCH_CHANNELS
 from workbench.errors import DataError
 from workbench.ingest.clock import align_clock
-from workbench.ingest.params import IngestParams
+from workbench.ingest.params import IngestSettings
 from workbench.ingest.readers import read_run
 from workbench.ingest.schema import columns_for
 from workbench.ingest.streams import Stream, check_stream
@@ -84,7 +84,7 @@ def angle_source(campaign: Campaign) -> str:
     return "measured" if campaign.motion is not None and campaign.motion.feedback else "commanded"
 
 
-def process_run(campaign: Campaign, run: RunSpec, params: IngestParams) -> RunOutput:
+def process_run(campaign: Campaign, run: RunSpec, params: IngestSettings) -> RunOutput:
     """Turn one run's raw files into processed rows on the controller's ticks."""
     streams = read_run(campaign, run)
     streams = {role: check_stream(s, params, run.id, campaign.loadcell.full_scale) for role, s in streams.items()}
@@ -188,7 +188,7 @@ def _rel(campaign: Campaign, s: Stream) -> str:
         return s.path.as_posix()
 
 
-def _angles(ctrl: Stream, campaign: Campaign, params: IngestParams) -> tuple[np.ndarray, ...]:
+def _angles(ctrl: Stream, campaign: Campaign, params: IngestSettings) -> tuple[np.ndarray, ...]:
     """Joint angles on the controller ticks: measured ones (low-passed like the forces) or commanded."""
     if angle_source(campaign) == "measured":
         return tuple(lowpass_sampled(ctrl.time_s, ctrl.values[c], params.lowpass_cutoff_hz, params.lowpass_order)

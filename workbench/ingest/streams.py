@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from workbench.errors import ContractError, DataError
-from workbench.ingest.params import IngestParams
+from workbench.ingest.params import IngestSettings
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ def csv_line(i: int) -> str:
     return f"line {i + 2}"
 
 
-def check_stream(s: Stream, params: IngestParams, run: str | None,
+def check_stream(s: Stream, params: IngestSettings, run: str | None,
                  full_scale: tuple[float, ...] | None = None) -> Stream:
     """Apply the shared rules; return the stream with short NaN runs bridged.
 

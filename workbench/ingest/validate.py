@@ -15,7 +15,7 @@ from typing import Callable
 from workbench.contract.campaign import Campaign, RunSpec, check_manifest
 from workbench.errors import WorkbenchError
 from workbench.ingest.campaign import map_runs
-from workbench.ingest.params import IngestParams
+from workbench.ingest.params import IngestSettings
 from workbench.ingest.readers import ReadSpec, make_reader
 from workbench.ingest.run import process_run
 from workbench.ingest.streams import check_stream
@@ -45,7 +45,7 @@ class Validation:
         return seen
 
 
-def validate_run(campaign: Campaign, run: RunSpec, params: IngestParams,
+def validate_run(campaign: Campaign, run: RunSpec, params: IngestSettings,
                  manifest_ok: bool = True) -> tuple[list[WorkbenchError], dict | None]:
     """Every violation in one run's files, and its quality record when it ingests cleanly.
 
@@ -76,10 +76,10 @@ def validate_run(campaign: Campaign, run: RunSpec, params: IngestParams,
     return errors, None
 
 
-def validate_campaign(campaign_dir: str | Path, params: IngestParams | None = None,
+def validate_campaign(campaign_dir: str | Path, params: IngestSettings | None = None,
                       progress: Callable[[int], None] | None = None) -> Validation:
     """Check the manifest and every run's files; collect all violations and saturation warnings."""
-    params = params or IngestParams()
+    params = params or IngestSettings()
     camp, manifest_errors = check_manifest(campaign_dir, params.limits)
     result = Validation(campaign=camp, errors=list(manifest_errors))
     if camp is None or any(e.run is None and "schema" in (e.where or "") for e in manifest_errors):

@@ -8,8 +8,8 @@ writes scores.csv, summary.json and the rest. Entry points: :func:`score_trial` 
 
 from workbench.trials.folder import FolderResult, TrialFailure, score_folder
 from workbench.trials.outputs import run_scoring
-from workbench.trials.params import ScoringParams
+from workbench.trials.params import ScoringParams, ScoringSettings
 from workbench.trials.trial import TrialResult, score_trial
 
-__all__ = ["FolderResult", "ScoringParams", "TrialFailure", "TrialResult", "run_scoring", "score_folder",
+__all__ = ["FolderResult", "ScoringParams", "ScoringSettings", "TrialFailure", "TrialResult", "run_scoring", "score_folder",
            "score_trial"]

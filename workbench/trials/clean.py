@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from workbench.trials.geometry import apply_homography
-from workbench.trials.params import ScoringParams
+from workbench.trials.params import ScoringSettings
 
 
 @dataclass(frozen=True)
@@ -212,9 +212,9 @@ def smooth_segments(v: np.ndarray, window: int, order: int) -> np.ndarray:
 
 
 def clean_pose(t_s: np.ndarray, head_px: np.ndarray, tail_px: np.ndarray, h_px2m: np.ndarray,
-               params: ScoringParams | None = None) -> PoseSeries:
+               params: ScoringSettings | None = None) -> PoseSeries:
     """Pose series from per-frame head and tail pixel positions (``(N, 2)``, NaN when missing)."""
-    p = params or ScoringParams()
+    p = params or ScoringSettings()
     t = np.asarray(t_s, float)
     head = apply_homography(h_px2m, np.asarray(head_px, float))
     tail = apply_homography(h_px2m, np.asarray(tail_px, float))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from workbench.contract.trials import TrialsFolder, TrialSpec, load_trials
 from workbench.errors import ContractError, WorkbenchError
-from workbench.trials.params import ScoringParams
+from workbench.trials.params import ScoringSettings
 from workbench.trials.trial import TrialResult, score_trial
 
 
@@ -28,7 +28,7 @@ class FolderResult:
     folder: TrialsFolder
     results: tuple[TrialResult, ...]
     failures: tuple[TrialFailure, ...]
-    params: ScoringParams
+    params: ScoringSettings
 
 
 def _one(args) -> tuple[str, TrialResult | None, str | None]:
@@ -46,7 +46,7 @@ def _worker_init() -> None:
     cv2.setNumThreads(1)
 
 
-def score_folder(root: str | Path, params: ScoringParams | None = None, *, overlay_dir: str | Path | None = None,
+def score_folder(root: str | Path, params: ScoringSettings | None = None, *, overlay_dir: str | Path | None = None,
                  trial_ids: list[str] | None = None, show_progress: bool = True) -> FolderResult:
     """Score the trials of ``root`` (all, or those named); raise only for folder-level faults.
 
@@ -55,7 +55,7 @@ def score_folder(root: str | Path, params: ScoringParams | None = None, *, overl
     """
     from workbench.console import progress
 
-    p = params or ScoringParams()
+    p = params or ScoringSettings()
     folder, per_trial = load_trials(root)
     specs = list(folder.trials)
     if trial_ids:

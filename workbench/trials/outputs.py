@@ -12,7 +12,7 @@ from pathlib import Path
 from workbench.errors import ContractError, DataError
 from workbench.trials.compare import compare_models, comparison_markdown, model_statistics, scores_frame
 from workbench.trials.folder import FolderResult, score_folder
-from workbench.trials.params import ScoringParams
+from workbench.trials.params import ScoringSettings
 
 SUMMARY_SCHEMA = "workbench/trial-scores@1"
 
@@ -60,7 +60,7 @@ def _check_out(out: Path, trials_dir: Path) -> None:
     check_replaceable(out, "score-trials")
 
 
-def run_scoring(trials_dir: str | Path, out_dir: str | Path, params: ScoringParams | None = None, *,
+def run_scoring(trials_dir: str | Path, out_dir: str | Path, params: ScoringSettings | None = None, *,
                 trial_ids: list[str] | None = None, show_progress: bool = True) -> tuple[FolderResult, dict]:
     """Score a trials folder and write every output to ``out_dir`` atomically; returns the result and summary.
 
@@ -69,7 +69,7 @@ def run_scoring(trials_dir: str | Path, out_dir: str | Path, params: ScoringPara
     from workbench.atomic import atomic_dir, write_json, write_text
     from workbench.trials import plots
 
-    p = params or ScoringParams()
+    p = params or ScoringSettings()
     trials_dir, out = Path(trials_dir), Path(out_dir)
     _check_out(out, trials_dir)
     with atomic_dir(out, verb="score-trials") as tmp:

@@ -11,7 +11,7 @@ from typing import Any, Mapping
 
 
 @dataclass(frozen=True)
-class ScoringParams:
+class ScoringSettings:
     """Detection, tracking and output settings for ``workbench score-trials``."""
 
     # --- detection (HSV gates; hue half-width in OpenCV units, 1 unit = 2 degrees)
@@ -66,14 +66,18 @@ class ScoringParams:
     baseline: str | None = None
 
     @classmethod
-    def from_mapping(cls, m: Mapping[str, Any] | None, *, source: str = "scoring params") -> "ScoringParams":
+    def from_mapping(cls, m: Mapping[str, Any] | None, *, source: str = "scoring params") -> "ScoringSettings":
         """Build from the ``scoring`` section (workbench.params: unknown keys and wrong types are a ParamsError)."""
         from workbench.params import build
 
         return build(cls, m, key="scoring", path=None if source == "scoring params" else source)
 
-    def replace(self, **changes) -> "ScoringParams":
+    def replace(self, **changes) -> "ScoringSettings":
         """A copy with some fields changed (None values are ignored)."""
         from dataclasses import replace
 
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+
+#: the name before issue 17 (settings classes end in ``Settings``); kept for existing imports
+ScoringParams = ScoringSettings

@@ -16,14 +16,14 @@ import numpy as np
 
 from workbench.trials.detect import Blob, ColourGate, find_blobs
 from workbench.trials.geometry import apply_homography
-from workbench.trials.params import ScoringParams
+from workbench.trials.params import ScoringSettings
 
 
 class MarkerTracker:
     """Track two coloured markers; ``update(frame, t)`` returns head and tail pixel positions (NaN if missing)."""
 
-    def __init__(self, h_px2m: np.ndarray, head: str, tail: str, params: ScoringParams | None = None):
-        self.p = params or ScoringParams()
+    def __init__(self, h_px2m: np.ndarray, head: str, tail: str, params: ScoringSettings | None = None):
+        self.p = params or ScoringSettings()
         self.h = np.asarray(h_px2m, float)
         mk = dict(hue_halfwidth=self.p.hue_halfwidth, sat_min=self.p.sat_min, val_min=self.p.val_min)
         self.gates = (ColourGate(head, **mk), ColourGate(tail, **mk))

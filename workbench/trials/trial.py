@@ -18,7 +18,7 @@ from workbench.contract.trials import RobotSpec, TrialSpec, trial_where
 from workbench.errors import DataError, WorkbenchError
 from workbench.trials.clean import PoseSeries, clean_pose, start_heading, start_position_along
 from workbench.trials.geometry import TrialFrame, apply_homography, plane_homography, trial_frame
-from workbench.trials.params import ScoringParams
+from workbench.trials.params import ScoringSettings
 from workbench.trials.scoring import (
     CAP_S,
     STATION_STEP_M,
@@ -117,7 +117,7 @@ class _Decider:
                 self.decided_at = t
 
 
-def _track(spec: TrialSpec, robot: RobotSpec, info: VideoInfo, h: np.ndarray, p: ScoringParams,
+def _track(spec: TrialSpec, robot: RobotSpec, info: VideoInfo, h: np.ndarray, p: ScoringSettings,
            early_stop: bool, overlay_path: Path | None):
     from workbench.trials.overlay import OverlayWriter
 
@@ -154,17 +154,17 @@ def _track(spec: TrialSpec, robot: RobotSpec, info: VideoInfo, h: np.ndarray, p:
             (tracker.n_searches, tracker.n_relaxed), stopped_early)
 
 
-def score_trial(spec: TrialSpec, robot: RobotSpec, params: ScoringParams | None = None, *,
+def score_trial(spec: TrialSpec, robot: RobotSpec, params: ScoringSettings | None = None, *,
                 overlay_path: str | Path | None = None) -> TrialResult:
     """Score one trial; raises a :class:`WorkbenchError` naming the trial on any fault."""
     try:
-        return _score_trial(spec, robot, params or ScoringParams(),
+        return _score_trial(spec, robot, params or ScoringSettings(),
                             None if overlay_path is None else Path(overlay_path))
     except WorkbenchError as exc:
         raise _fail(spec, exc) from None
 
 
-def _score_trial(spec: TrialSpec, robot: RobotSpec, p: ScoringParams, overlay_path: Path | None) -> TrialResult:
+def _score_trial(spec: TrialSpec, robot: RobotSpec, p: ScoringSettings, overlay_path: Path | None) -> TrialResult:
     t0 = time.perf_counter()
     info = probe_video(spec.video)
     if spec.start_s >= info.duration_s:
