@@ -117,12 +117,30 @@ def test_every_parameter_is_logged_and_a_long_value_is_marked(project):
     assert client.get_run(run.info.run_id).data.tags["state"] == "complete"
 
 
+def test_a_diagnosis_logs_every_setting(project, tmp_path):
+    """diagnose (and gait) hand their settings to workbench.tracking: more than 100 are all logged (once cut at 100)."""
+    import dataclasses
+
+    from mlflow import MlflowClient
+
+    from workbench.diagnose.tracking import log_trajectory_diagnosis
+
+    Settings = dataclasses.make_dataclass("Settings", [(f"knob{i:03d}", float, i * 0.25) for i in range(150)])
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "trajectory_errors.json").write_text("{}\n")
+    doc = {"trials": str(tmp_path / "pool-a"), "gaits": "g", "reference": "r", "wall_margin_m": 0.1, "models": {}}
+    run_id = log_trajectory_diagnosis(doc, {}, out, Settings(), f"sqlite:///{project / 'mlflow.db'}")
+    params = MlflowClient(f"sqlite:///{project / 'mlflow.db'}").get_run(run_id).data.params
+    assert sum(k.startswith("settings.knob") for k in params) == 150 and params["settings.knob149"] == "37.25"
+
+
 @pytest.mark.slow
 def test_a_copied_project_logs_into_its_own_folder(trained, project, tmp_path, monkeypatch):
     import mlflow
 
     from workbench.hydro.legmodel import load_leg_model
-    from workbench.tracking import log_artifacts, run_tags, tracked_run
+    from workbench.project import setup_mlflow
 
     copy = tmp_path / "copied-project"
     shutil.copytree(project, copy)
@@ -131,9 +149,9 @@ def test_a_copied_project_logs_into_its_own_folder(trained, project, tmp_path, m
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{copy / 'mlflow.db'}")
     note = tmp_path / "note.txt"
     note.write_text("logged from the copy\n")
-    with tracked_run(name="from the copy", tags=run_tags(kind="test", campaigns=["synth"]),
-                     experiment="fed-lstm") as run:
-        log_artifacts([note])
+    setup_mlflow(None, "fed-lstm")  # what every verb does first
+    with mlflow.start_run(run_name="from the copy") as run:
+        mlflow.log_artifact(str(note))
     where = Path(mlflow.get_run(run.info.run_id).info.artifact_uri.removeprefix("file://"))
     assert where.is_relative_to(copy / "mlartifacts") and (where / "note.txt").is_file()
     assert sorted(p for p in (project / "mlartifacts").rglob("*") if p.is_file()) == orig_files  # original untouched
