@@ -51,15 +51,18 @@ def main() -> int:
             print(f"clean campaign, {model} {'with' if with_ref else 'without'} reference: claims "
                   f"{[e.name for e in clean.effects] or 'nothing'}", flush=True)
             results = []
+            title = f"{model}, {'with --reference' if with_ref else 'no reference'}"
+            out[title] = {"clean_claims": [e.name for e in clean.effects], "results": results}
             for c in cases:
                 r = bench.run(c, model, with_ref)
-                print(f"  {c.name}: named {r['named']}, extra {r['extra']}, params {r['params']}", flush=True)
+                share = "-" if r["removed_share"] is None else f"{r['removed_share']:.0%}"
+                print(f"  {c.name}: named {r['named']}, extra {r['extra']}, params {r['params']}, "
+                      f"errors {({k: None if v is None else round(v, 3) for k, v in r['param_err'].items()})}, "
+                      f"removed {share}, {r['seconds']:.0f} s", flush=True)
                 results.append(r)
-            title = f"{model}, {'with --reference' if with_ref else 'no reference'}"
+                if args.json:  # after every case: a long battery stopped early keeps what it measured
+                    Path(args.json).write_text(json.dumps(out, indent=1, default=str))
             print(B.table(results, title), flush=True)
-            out[title] = {"clean_claims": [e.name for e in clean.effects], "results": results}
-    if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=1, default=str))
     return 0
 
 
