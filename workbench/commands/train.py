@@ -5,9 +5,13 @@ from __future__ import annotations
 from workbench.commands._help import add_verb
 
 EXAMPLES = """\
-  # the paper's FED-LSTM on the interpolated demo campaign (writes datasets/models/fed-lstm,
-  # logs to MLflow, registers models:/fed-lstm@champion)
+  # the paper's FED-LSTM on the interpolated demo campaign (writes scratch/models/fed-lstm and logs
+  # the run and the model to MLflow; registers nothing)
   workbench train --data datasets/processed/interp/demo-tunnel.parquet
+
+  # register it too and point an alias at it; then any MLflow client can load it:
+  #   mlflow.pyfunc.load_model("models:/fed-lstm@candidate").predict(frame)
+  workbench train --data d.parquet --out scratch/models/candidate --register --alias candidate
 
   # a GRU variant, two campaigns, not promoted to champion
   workbench train --data a.parquet b.parquet --set model.variant=gru --alias candidate
@@ -97,7 +101,13 @@ def run(args) -> int:
              "  ".join(f"{c} {metrics['test_r2'][c]:.2f}" for c in ("fy_n", "fz_n", "tx_nm")))
     if cfg.model_dir:
         info(f"model folder: {cfg.model_dir}")
+    if "run_id" in objects:
+        import mlflow
+
+        info(f"MLflow run '{mlflow.get_run(objects['run_id']).info.run_name}' ({objects['run_id']}), "
+             f"model {objects.get('model_id', 'not logged')}")
     if "model_version" in objects:
+        uri = f"models:/{cfg.tracking.registered_model}@{cfg.tracking.alias}"
         info(f"registered {cfg.tracking.registered_model} version {objects['model_version']} "
-             f"as @{cfg.tracking.alias} (run {objects['run_id']})")
+             f"as @{cfg.tracking.alias} (run {objects['run_id']}); mlflow.pyfunc.load_model({uri!r}) loads it")
     return 0
