@@ -246,3 +246,21 @@ def test_virtual_lab_sections_split_into_campaign_and_rig_settings(tmp_path, cap
                    "'rest_before_s'? allowed: rate_hz, feedback, rest_before_s, rest_after_s, ease_s, "
                    "feedback_noise_deg, feedback_resolution_deg)")
     assert not (tmp_path / "t").exists()
+
+
+def test_a_list_left_empty_is_empty_and_diagnose_names_the_key_path(tmp_path, capsys):
+    f = tmp_path / "d.yaml"
+    f.write_text("diagnose:\n  library:\n    effects:\n  fit:\n    surrogate_serch: auto\n", encoding="utf-8")
+    from workbench.diagnose.loop import DiagnoseSettings
+
+    raw, source = read_section(str(f), "diagnose")
+    assert raw["library"]["effects"] is None  # what YAML gives for an empty key
+    with pytest.raises(ParamsError) as info:
+        DiagnoseSettings.from_mapping(raw, source)
+    assert str(info.value).startswith(f"{f}, diagnose.fit.surrogate_serch: unknown setting 'surrogate_serch' "
+                                      "(did you mean 'surrogate_search'?")
+    del raw["fit"]
+    assert DiagnoseSettings.from_mapping(raw, source).library.effects == ()
+    assert main(["diagnose", "--processed", str(tmp_path / "none.parquet"), "--out", str(tmp_path / "o"),
+                 "--params", str(f), "--no-mlflow"]) == 2
+    assert "diagnose.fit.surrogate_serch" in capsys.readouterr().err

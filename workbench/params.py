@@ -8,7 +8,8 @@ Every verb reads its knobs the same way::
 :func:`read_section` finds the file (an explicit ``--params`` file, else the project's default file,
 else built-in defaults) and returns one section, addressed by a dotted key (``optimize.nsga2``).
 :func:`build` turns a mapping into a frozen dataclass: nested dataclasses are built from nested
-mappings, YAML's ints become floats where a float is declared, lists become tuples, ``Optional``,
+mappings, YAML's ints become floats where a float is declared, lists become tuples (a list left
+empty, i.e. null, is empty), ``Optional``,
 ``Literal`` choices, lists, tuples and mappings are checked, and an unknown key is refused with a
 :class:`~workbench.errors.ParamsError` naming the file, the key path (``diagnose.fit.surrogate_serch``),
 the nearest allowed key and all of them. The dataclass's own ``__post_init__`` checks (ranges,
@@ -281,6 +282,9 @@ def _coerce_scalar(value: Any, tp: type, where: str, path) -> Any:
 
 
 def _coerce_sequence(value: Any, tp: Any, where: str, path) -> Any:
+    origin = typing.get_origin(tp)
+    if value is None and not (origin is tuple and typing.get_args(tp) and typing.get_args(tp)[-1] is not Ellipsis):
+        value = []  # ``effects:`` left empty in YAML is null: an empty list
     if not isinstance(value, (list, tuple)):
         raise _bad(value, tp, where, path)
     origin, args = typing.get_origin(tp), typing.get_args(tp)

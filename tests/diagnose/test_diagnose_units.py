@@ -12,7 +12,7 @@ from workbench.diagnose.evidence import EvidenceSettings, RunResidual, peaks
 from workbench.diagnose.flowterms import LegKinematics, first_order_lag
 from workbench.diagnose.library import EffectLibrary, default_library
 from workbench.diagnose.loop import DiagnoseSettings
-from workbench.errors import ContractError, ModelError
+from workbench.errors import ModelError, ParamsError
 from workbench.hydro.ef import EFParams, EmpiricalFormula
 from workbench.hydro.motion import JointSinusoid, RunMotion
 
@@ -166,9 +166,9 @@ def test_settings_reject_unknown_keys_and_the_pipeline_file_loads():
 
     s = DiagnoseSettings.from_mapping(load_params("pipelines/diagnose.yaml", "diagnose"))
     assert s.selection.alpha == 0.01
-    with pytest.raises(ContractError):
+    with pytest.raises(ParamsError, match=r"diagnose\.selection\.alpha_typo: unknown setting .*did you mean 'alpha'"):
         DiagnoseSettings.from_mapping({"selection": {"alpha_typo": 1}})
-    with pytest.raises(ContractError):
+    with pytest.raises(ParamsError, match=r"diagnose\.nonsense"):
         DiagnoseSettings.from_mapping({"nonsense": 1})
 
 

@@ -177,7 +177,6 @@ def run(args) -> int:
     from workbench.console import info
     from workbench.diagnose.chain import Lowpass
     from workbench.diagnose.loop import DiagnoseSettings, diagnose
-    from workbench.errors import ContractError
     from workbench.hydro.legmodel import load_leg_model
 
     check_replaceable(args.out, "diagnose")  # a wrong --out is refused before the work, not after
@@ -185,10 +184,9 @@ def run(args) -> int:
     t0 = time.perf_counter()
     if args.trials:
         return _run_trajectories(args, t0)
-    try:
-        settings = DiagnoseSettings.from_mapping(_section(args.params, "pipelines/diagnose.yaml", "diagnose"))
-    except TypeError as exc:
-        raise ContractError(f"bad diagnose parameter: {exc}", path=args.params) from None
+    from workbench.params import read_section
+
+    settings = DiagnoseSettings.from_mapping(*read_section(args.params, "diagnose", default="pipelines/diagnose.yaml"))
     if args.effects:
         settings = dataclasses.replace(settings, library=dataclasses.replace(
             settings.library, effects=tuple(e.strip() for e in args.effects.split(",") if e.strip())))

@@ -8,7 +8,7 @@ the report and the augmented model are written from). No files are touched here.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -23,7 +23,6 @@ from workbench.diagnose.evidence import Evidence, EvidenceSettings, analyse
 from workbench.diagnose.library import EffectLibrary, default_library
 from workbench.diagnose.problem import FitSettings, Problem, run_residuals
 from workbench.diagnose.selection import SelectionSettings, StepwiseSelection, judge
-from workbench.errors import ContractError
 
 CHANNELS = list(WRENCH_CHANNELS)
 
@@ -71,32 +70,17 @@ class DiagnoseSettings:
     match_lowpass: bool = True
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, Any] | None) -> "DiagnoseSettings":
-        """Build from the YAML section; unknown keys are an error (a typo would be silent)."""
+    def from_mapping(cls, values: Mapping[str, Any] | None, path: str | None = None) -> "DiagnoseSettings":
+        """Build from the YAML section of file ``path`` (workbench.params).
+
+        Unknown keys and wrong types are a ParamsError naming the key path (``diagnose.fit.surrogate_serch``).
+        """
+        from workbench.params import build
+
         values = dict(values or {})
-        sections = {"data": DataSettings, "fit": FitSettings, "selection": SelectionSettings,
-                    "evidence": EvidenceSettings, "library": LibrarySettings, "report": ReportSettings}
         # the trajectory level reads its own section (workbench.diagnose.trajectory.TrajectorySettings)
         values.pop("trajectory", None)
-        known = set(sections) | {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ContractError(f"unknown diagnose parameter(s) {unknown}", where="diagnose parameters")
-        kw: dict[str, Any] = {}
-        for name, typ in sections.items():
-            sec = dict(values.get(name) or {})
-            names = {f.name for f in fields(typ)}
-            bad = sorted(set(sec) - names)
-            if bad:
-                raise ContractError(f"unknown {name} parameter(s) {bad}", where="diagnose parameters",
-                                    hint=f"known: {sorted(names)}")
-            if name == "library" and "effects" in sec:
-                sec["effects"] = tuple(sec["effects"] or ())
-            kw[name] = typ(**sec)
-        for k in ("lowpass_cutoff_hz", "lowpass_order", "match_lowpass"):
-            if k in values:
-                kw[k] = values[k]
-        return cls(**kw)
+        return build(cls, values, key="diagnose", path=path)
 
 
 @dataclass
