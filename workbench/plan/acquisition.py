@@ -133,6 +133,22 @@ def _states(motion, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
                                             m.omega_k_dps)], axis=-1)
 
 
+def _trimmed(motion, cols: np.ndarray, seq_len: int):
+    """The motion from ``seq_len`` ticks before the first tick needed (a window model sees the same windows)."""
+    from workbench.hydro.motion import LegMotion
+
+    lo = max(0, int(cols.min()) - seq_len)
+    if lo == 0:
+        return motion, cols
+
+    def cut(a):
+        return None if a is None else a[:, lo:]
+
+    return LegMotion(motion.dt_s, cut(motion.theta_h_deg), cut(motion.theta_k_deg), cut(motion.omega_h_dps),
+                     cut(motion.omega_k_dps), cut(motion.flow_speed_mps), cut(motion.alpha_h_dps2),
+                     cut(motion.alpha_k_dps2)), cols - lo
+
+
 @dataclass
 class Selection:
     """The greedy batch: chosen candidate indices, gains, and the region variance before and after."""
@@ -160,8 +176,9 @@ class IntegratedVariance:
         # region: member predictions at the region ticks
         rows = np.repeat(np.arange(region.ticks.shape[0]), region.ticks.shape[1])
         cols = region.ticks.ravel()
-        pr = ensemble.member_predictions(region.motion)[:, rows, cols]          # (K, M, 6)
-        sr = _states(region.motion, rows, cols)
+        motion, cols = _trimmed(region.motion, cols, ensemble.seq_len)
+        pr = ensemble.member_predictions(motion)[:, rows, cols]                 # (K, M, 6)
+        sr = _states(motion, rows, cols)
         cm, cticks = candidate_motion(self.cands, self.dt_s, ensemble.seq_len + 1, self.points)
         crow = np.repeat(np.arange(len(self.cands)), self.points)
         pc = ensemble.member_predictions(cm)[:, crow, cticks.ravel()]          # (K, N*m, 6)

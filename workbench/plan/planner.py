@@ -82,6 +82,7 @@ def plan_campaign(ensemble_dir: str | Path, gait_files: Sequence[str | Path], n_
     out = Path(out)
     cid = _plan_id(out, campaign_id)
     t0 = time.perf_counter()
+    read_gaits(gait_files, s.max_rank)  # bad gait files are refused before anything is loaded
     ens = load_ensemble(ensemble_dir)
     if region is None:
         region = operating_region(gait_files, robot_yaml=robot_yaml, drag_json=drag_json, duration_s=s.swim_s,
