@@ -255,6 +255,7 @@ def _run_trajectories(args, t0: float) -> int:
     from pathlib import Path
 
     from workbench.atomic import atomic_dir, write_json
+    from workbench.commands.simulate import robot_simulation_settings
     from workbench.console import info
     from workbench.diagnose.augmented import AugmentedLegModel
     from workbench.diagnose.trajectory import (
@@ -266,27 +267,17 @@ def _run_trajectories(args, t0: float) -> int:
         simulate_tracks,
         trajectory_errors,
     )
-    from workbench.errors import ContractError, DataError
+    from workbench.errors import DataError
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import RobotParams, load_robot
-    from workbench.hydro.simulator import simulation_settings
-    from workbench.project import load_params
+    from workbench.params import load_settings
 
-    section = _section(args.params, "pipelines/diagnose.yaml", "diagnose") or {}
-    traj = dict(section.get("trajectory") or {})
-    if "yaw_bounds_dps" in traj:
-        traj["yaw_bounds_dps"] = tuple(traj["yaw_bounds_dps"])
-    try:
-        settings = TrajectorySettings(**traj)
-    except TypeError as exc:
-        raise ContractError(f"bad trajectory parameter: {exc}", path=args.params) from None
+    settings = load_settings(TrajectorySettings, args.params, "diagnose.trajectory", default="pipelines/diagnose.yaml",
+                             required=False)
     robot, sim_kw = RobotParams(), {}
     if Path(args.robot).is_file():
         robot = load_robot(args.robot)
-        try:
-            sim_kw = simulation_settings((load_params(args.robot) or {}).get("simulation"))
-        except ValueError as exc:
-            raise ContractError(str(exc), path=args.robot) from None
+        sim_kw = robot_simulation_settings(args.robot)
     tracks = read_tracks(args.trials, wall_margin_m=settings.wall_margin_m)
     cut = [tr.trial_id for tr in tracks if tr.cut_at_wall_s is not None]
     info(f"trajectory level on {args.trials}: {len(tracks)} trials" + (f" ({len(cut)} cut where the robot reached "
