@@ -3,8 +3,10 @@
 Three rules hold for every verb that writes through this module (docs/data-outputs.md):
 
 * **Whole or old.** A file is written to a temporary sibling, fsynced and renamed over its target; a
-  folder is built in a hidden sibling and swapped in whole. A kill at any moment leaves either the
-  previous output or the new one, never a mix.
+  folder is built in a hidden sibling and swapped in whole (one atomic exchange of the two names where
+  the file system can). A kill at any moment leaves either the previous output or the new one, never a
+  mix. Several files in a folder others share (:func:`atomic_files`: ``report``, ``optimize``) are
+  committed by a journal and renamed after it; a kill after the commit is completed by the next write.
 * **Never delete what we did not write.** :func:`atomic_dir` replaces an existing folder only when it
   holds this verb's earlier output: a marker file (:data:`MARKER`, written into every folder it swaps
   in) naming the verb, or, for folders written before markers existed, content made only of names the
@@ -12,8 +14,9 @@ Three rules hold for every verb that writes through this module (docs/data-outpu
   Nothing is ever written inside a raw campaign or trials folder (one holding ``campaign.toml`` or
   ``trials.toml``, or anything under one).
 * **Nothing left behind.** Temporary names carry the writer's pid (``.<name>.wb<pid>-<random>.tmp``
-  for files, ``.part`` for folders, ``.old`` for a folder being swapped out); the next write into the
-  same folder removes those whose process is gone (or that are older than :data:`STALE_AFTER_S`), and
+  for files, ``.part`` for folders, ``.old`` for a folder being swapped out, ``.set`` for a file set's
+  journal); the next write into the same folder first completes what a dead writer committed or left
+  half swapped, then removes those whose process is gone (or older than :data:`STALE_AFTER_S`), and
   temporaries of the older naming (``.<name>.<8 random chars>``) of the same target older than
   :data:`LEGACY_STALE_AFTER_S`. Swapped-in folders and files get the umask's permissions.
 

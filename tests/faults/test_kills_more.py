@@ -3,7 +3,8 @@
 The style of test_kills.py: each verb writes a first complete output (set A) and then a second one
 (set B, timed); then the real CLI is started again in its own process group, aiming each time at
 the set not there now, and the group is SIGKILLed at random moments (seeded: FAULT_SEED, FAULT_KILLS
-of them): one in start-up, the rest over the later 60 % of a run, where the writing happens. After
+of them): one in start-up, the rest over the later 60 % of a run, where the writing happens; and one
+more the moment the command's first temporary shows up (inside the writing whatever the load). After
 every kill the output must be set A or set B, whole (every file readable, the files of one run
 together; for the deterministic verbs the same content as the set the verb wrote), no temporary may
 be visible as an output, and after the next complete run no temporary may be left at all.
@@ -23,6 +24,7 @@ import hashlib
 import json
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -75,15 +77,47 @@ def _env(tmp: Path) -> dict:
     return project_env(tmp)
 
 
+def _kill_when_writing(env: dict, cwd: Path, watch: list[Path], *args: str) -> bool:
+    """Start ``workbench ARGS``; SIGKILL its group the moment one of its temporaries shows up in ``watch``.
+
+    Returns whether it was killed while writing (False: it ended first).
+    """
+    proc = subprocess.Popen([sys.executable, "-m", "workbench.cli", *args], cwd=cwd, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    mine = f".wb{proc.pid}-"
+    try:
+        while proc.poll() is None:
+            if any(mine in p for folder in watch for p in leftovers(folder)):
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+                return True
+            time.sleep(0.005)
+        return False
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def _visible_temporaries(folder: Path) -> list[str]:
+    """Anything under ``folder``, outside hidden entries, named like a temporary or a partial write."""
+    if not folder.is_dir():
+        return []
+    return sorted(str(p) for p in folder.rglob("*")
+                  if not any(part.startswith(".") for part in p.relative_to(folder).parts)
+                  and re.search(r"(\.(tmp|part|partial|old|crdownload)|~)$|\.wb\d+-", p.name))
+
+
 def _moments(name: str, full_s: float, n: int) -> list[float]:
     """One kill in start-up, the rest over the later part of a run (the writing is at its end)."""
     rng = random.Random(f"{SEED}-{name}")
     return [0.3 + rng.random() * 0.5] + [rng.uniform(0.4 * full_s, 1.0 * full_s) for _ in range(n - 1)]
 
 
-def _count(name: str, survived: int, kills: int) -> None:
-    line = {"verb": name, "kills": kills, "landed_inside_a_run": survived}
-    print(f"{name}: {survived} of {kills} kills landed inside a run; every output whole after each")
+def _count(name: str, survived: int, kills: int, writing: int | None = None) -> None:
+    line = {"verb": name, "kills": kills, "landed_inside_a_run": survived, "left_a_temporary": writing}
+    during = "" if writing is None else f" ({writing} while writing: they left a temporary)"
+    print(f"{name}: {survived} of {kills} kills landed inside a run{during}; every output whole after each")
     path = os.environ.get("FAULT_COUNTS")
     if path:
         with open(path, "a", encoding="utf-8") as fh:
@@ -102,22 +136,27 @@ def kill_cycle(name: str, tmp: Path, runs: dict[str, tuple[str, ...]], state, wa
     assert state() == "a"
     full = _run(env, tmp, *runs["b"])
     assert state() == "b"
-    survived = 0
+    survived = writing = 0
     for delay in _moments(name, full, kills):
         other = "b" if state() == "a" else "a"
         rc = _kill_after(env, tmp, delay, *runs[other])
         got = state()
         if rc is not None:
             assert rc == 0 and got == other, f"{name}: ended with {rc} before the kill, set {got!r}"
-        for folder in watch:
-            visible = [p for p in leftovers(folder) if not p.rsplit("/", 1)[-1].startswith(".")]
-            assert visible == [], f"{name}: temporaries visible as outputs: {visible}"
+        left = [p for folder in watch for p in leftovers(folder)]
+        visible = [p for folder in watch for p in _visible_temporaries(folder)]
+        assert visible == [], f"{name}: temporaries visible as outputs: {visible}"
+        writing += bool(left)
         survived += rc is None
+    # and once at the first sight of its temporaries: inside the writing, whatever the machine's load
+    other = "b" if state() == "a" else "a"
+    caught = _kill_when_writing(env, tmp, watch, *runs[other])
+    assert state() in ("a", "b") and (caught or state() == other)
     _run(env, tmp, *runs["a"])
     assert state() == "a"
     for folder in watch:
         assert leftovers(folder) == [], f"{name}: temporaries of killed runs were not swept: {leftovers(folder)}"
-    _count(name, survived, kills)
+    _count(name, survived + caught, kills + 1, writing + caught)
     assert survived >= 1, f"{name}: no kill landed inside a run"
 
 
