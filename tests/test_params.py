@@ -264,3 +264,13 @@ def test_a_list_left_empty_is_empty_and_diagnose_names_the_key_path(tmp_path, ca
     assert main(["diagnose", "--processed", str(tmp_path / "none.parquet"), "--out", str(tmp_path / "o"),
                  "--params", str(f), "--no-mlflow"]) == 2
     assert "diagnose.fit.surrogate_serch" in capsys.readouterr().err
+
+
+def test_callers_get_their_own_copy_of_a_cached_file(tmp_path):
+    from workbench.project import load_params
+
+    f = _yaml(tmp_path / "p.yaml", {"demo": {"inner": {"taps": [1, 2]}}})
+    raw, _ = read_section(f, "demo")
+    raw["inner"]["taps"].append(99)  # e.g. a --set override applied in place
+    load_params(f)["demo"]["inner"]["gain"] = 7.0
+    assert read_section(f, "demo")[0] == {"inner": {"taps": [1, 2]}}

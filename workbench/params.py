@@ -9,8 +9,8 @@ Every verb reads its knobs the same way::
 else built-in defaults) and returns one section, addressed by a dotted key (``optimize.nsga2``).
 :func:`build` turns a mapping into a frozen dataclass: nested dataclasses are built from nested
 mappings, YAML's ints become floats where a float is declared, lists become tuples (a list left
-empty, i.e. null, is empty), ``Optional``,
-``Literal`` choices, lists, tuples and mappings are checked, and an unknown key is refused with a
+empty, i.e. null, is empty), ``Optional``, ``Literal`` choices, lists, tuples and mappings are
+checked, and an unknown key is refused with a
 :class:`~workbench.errors.ParamsError` naming the file, the key path (``diagnose.fit.surrogate_serch``),
 the nearest allowed key and all of them. The dataclass's own ``__post_init__`` checks (ranges,
 combinations) run as usual; a ``ValueError`` or ``TypeError`` they raise is reported the same way.
@@ -18,6 +18,7 @@ combinations) run as usual; a ``ValueError`` or ``TypeError`` they raise is repo
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import datetime as _dt
 import difflib
@@ -88,7 +89,7 @@ def read_document(path: str | Path) -> Any:
     p = _resolve_file(path, None)
     st = p.stat()
     doc = _load_yaml(str(p), st.st_mtime, st.st_size)
-    return {} if doc is None else doc
+    return {} if doc is None else copy.deepcopy(doc)  # the parsed file is cached: callers get their own copy
 
 
 def read_section(path: str | Path | None, section: str, *, default: str | Path | None = None,
@@ -125,7 +126,7 @@ def read_section(path: str | Path | None, section: str, *, default: str | Path |
         return {}, str(p)
     if not isinstance(node, Mapping):
         raise ParamsError(f"must be a mapping of settings, not {type(node).__name__}", path=p, where=section)
-    return dict(node), str(p)
+    return copy.deepcopy(dict(node)), str(p)  # the parsed file is cached: callers get their own copy
 
 
 def load_settings(cls: type[T], path: str | Path | None, section: str, *, default: str | Path | None = None,
