@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ast
 import fnmatch
+import functools
 import re
 import subprocess
 import sys
@@ -64,9 +65,15 @@ def _rel(path: Path) -> str:
     return path.relative_to(ROOT).as_posix()
 
 
+@functools.lru_cache(maxsize=None)
+def _tree(path: Path) -> ast.Module:
+    return ast.parse(path.read_text(encoding="utf-8"))
+
+
+@functools.lru_cache(maxsize=None)
 def _imports(path: Path, module_parts: tuple[str, ...] | None = None) -> list[tuple[str, bool]]:
     """(module, at_top) for every absolute and relative import of a file, lazy ones included."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
+    tree = _tree(path)
     top = {id(n) for n in tree.body}
     pkg_parts = (module_parts or path.relative_to(ROOT).with_suffix("").parts)[:-1]
     out = []
@@ -130,7 +137,7 @@ def test_no_package_imports_its_own_layer_or_a_higher_one():
 
 
 def _does_file_io(path: Path) -> bool:
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in ast.walk(_tree(path)):
         if not isinstance(node, ast.Call):
             continue
         fn = node.func
