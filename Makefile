@@ -42,8 +42,9 @@ demo: setup
 test: setup system-deps
 	$(BIN)/python -m pytest -q -ra
 
+# under 2 minutes on an idle 2-core machine (docs/testing.md); the slowest tests are listed at the end
 test-fast: setup
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" --durations=10
 
 # the paper's study end to end in a scratch copy of this commit, timed per stage (docs/pipeline.md)
 paper: setup

@@ -2,6 +2,7 @@
 
 import json
 
+import pytest
 import yaml
 from test_export import check_contract_gait_file
 
@@ -20,6 +21,7 @@ def _params(tmp_path, name="gait.yaml", **changes):
     return path
 
 
+@pytest.mark.slow
 def test_optimize_writes_contract_files_and_an_mlflow_run(tmp_path, capsys):
     params = _params(tmp_path)
     out = tmp_path / "gaits"

@@ -21,6 +21,7 @@ def pair_diagnosis(vl_frames):
     return diagnose(vl_frames(PAIR, n_sets=10), EmpiricalFormula(), "ef")
 
 
+@pytest.mark.slow
 def test_diagnosis_json_follows_the_contract(pair_diagnosis):
     j = json.loads(json.dumps(pair_diagnosis.to_json()))
     assert j["model"] == "ef"
@@ -41,6 +42,7 @@ def test_diagnosis_json_follows_the_contract(pair_diagnosis):
     assert j["heldout_runs"] and j["n_train_runs"] > len(j["heldout_runs"])
 
 
+@pytest.mark.slow
 def test_augmented_model_is_a_leg_force_model_and_reproduces_mse_after(pair_diagnosis, tmp_path):
     d = pair_diagnosis
     aug = d.augmented
@@ -71,6 +73,7 @@ def test_augmented_model_is_a_leg_force_model_and_reproduces_mse_after(pair_diag
     assert phys.wrench(m).shape == w[None].shape
 
 
+@pytest.mark.slow
 def test_cli_writes_everything_and_logs_to_mlflow(tmp_path):
     camp = campaign(tmp_path, ("sensor_drift:rate_fz_n_per_s=0.002",), n_sets=8)
     out = tmp_path / "diag"

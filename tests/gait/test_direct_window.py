@@ -1,6 +1,7 @@
 """A window net swum directly: the simulator runs it on each window's ticks (plus its memory) only, exactly."""
 
 import numpy as np
+import pytest
 from models import small_lstm
 
 from workbench.hydro.legmodel import LegForceModel
@@ -22,6 +23,7 @@ class _Opaque(LegForceModel):
         return {"name": self.name}
 
 
+@pytest.mark.slow
 def test_window_net_on_window_ticks_gives_the_whole_history_numbers(robot):
     net = small_lstm(variant="lstm", residual_scale_n=0.05)
     rng = np.random.default_rng(3)

@@ -59,6 +59,7 @@ def test_retained_gaits_resimulated_from_the_file_reproduce_their_objectives(rob
     np.testing.assert_allclose(f, recorded, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_retained_lstm_gaits_carry_the_models_own_objectives(robot):
     """A tabulated search: the kept gaits were swum again directly, and that is what the file records."""
     from dataclasses import replace

@@ -34,6 +34,7 @@ def test_robot_with_sets_the_constants_and_makes_low_speed_drag_linear():
     assert r.added_mass_lateral_kg == base.added_mass_lateral_kg
 
 
+@pytest.mark.slow
 def test_sobol_study_finds_the_only_factor_that_matters():
     # two factors: yaw damping (moves a turn) and a dummy on the forward added mass over a range too
     # narrow to matter; the turn score must owe its variance to the damping

@@ -105,6 +105,7 @@ def test_the_corrections_matter_for_long_memory(robot):
     assert err_with < err_without / 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant", ["ef_residual", "lstm"])
 def test_lstm_objectives_within_one_percent(robot, variant):
     """The FED-LSTM code path with random weights: EF + an LSTM memory term, and a bare LSTM

@@ -67,6 +67,7 @@ def tick_by_tick(gaits, model, robot, duration_s, *, memory, dt_s=DEFAULT_DT_S):
     return out
 
 
+@pytest.mark.slow
 def test_random_gaits_converge_over_60_s_and_match_tick_by_tick_stepping(robot):
     gaits = paper_space_gaits(24, seed=11)
     tr = simulate(gaits, EF, robot, duration_s=60.0)

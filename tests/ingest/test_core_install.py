@@ -10,6 +10,7 @@ import textwrap
 import tomllib
 from pathlib import Path
 
+import pytest
 from ingest_fixtures import RunPlan, write_campaign
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -54,6 +55,7 @@ def test_core_dependencies_leave_the_full_stack_to_an_extra():
     assert "'.[full,dev]'" in (ROOT / "Makefile").read_text()
 
 
+@pytest.mark.slow
 def test_validate_ingest_and_acquire_run_with_the_heavy_libraries_blocked(tmp_path):
     camp = write_campaign(tmp_path / "c1", [RunPlan("r1", flow_speed=0.1), RunPlan("r2", flow_speed=0.2)])
     out = _core(["campaign", "validate", str(camp)], tmp_path)

@@ -60,6 +60,7 @@ def test_train_writes_model_folder_and_registers_champion(trained, project):
     assert run.data.tags["state"] == "complete" and run.data.tags["model_id"] == mv.source.removeprefix("models:/")
 
 
+@pytest.mark.slow
 def test_registered_model_reproduces_its_test_metric_in_a_fresh_process(trained, project, parquet):
     interp, _ = parquet
     code = f"""
