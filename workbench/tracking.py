@@ -94,12 +94,7 @@ def setup(tracking_uri_: str | None = None, experiment: str | None = None) -> st
     import mlflow
 
     logging.getLogger("mlflow").setLevel(logging.WARNING)
-    uri = tracking_uri(tracking_uri_)
-    mlflow.set_tracking_uri(uri)
-    db = sqlite_path(uri)
-    if db is not None and str(db) not in _CHECKED_STORES:
-        relocate_store(uri)
-        _CHECKED_STORES.add(str(db))
+    uri = use_store(tracking_uri_)
     if experiment:
         if mlflow.get_experiment_by_name(experiment) is None:
             kwargs: dict[str, Any] = {}
@@ -113,6 +108,23 @@ def setup(tracking_uri_: str | None = None, experiment: str | None = None) -> st
             except Exception:  # noqa: BLE001 - another process created it first
                 pass
         mlflow.set_experiment(experiment)
+    return uri
+
+
+def use_store(tracking_uri_: str | None = None) -> str:
+    """Point MLflow at the store (explicit, env, or the project's) after re-pointing a copied sqlite store; the URI.
+
+    The store is checked once per process (:func:`relocate_store`); reading a registered model
+    goes through here too, so a copied project loads its own files even before it logs anything.
+    """
+    import mlflow
+
+    uri = tracking_uri(tracking_uri_)
+    mlflow.set_tracking_uri(uri)
+    db = sqlite_path(uri)
+    if db is not None and str(db) not in _CHECKED_STORES:
+        relocate_store(uri)
+        _CHECKED_STORES.add(str(db))
     return uri
 
 
@@ -510,10 +522,9 @@ def register_model(run, name: str, alias: str | None, tags: Mapping[str, str] | 
 
 def resolve_version(uri: str, tracking_uri_: str | None = None):
     """The registry version a ``models:/name@alias`` or ``models:/name/version`` URI names (MLflow ModelVersion)."""
-    import mlflow
     from mlflow import MlflowClient
 
-    mlflow.set_tracking_uri(tracking_uri(tracking_uri_))
+    use_store(tracking_uri_)
     body = uri[len("models:/"):]
     client = MlflowClient()
     if "@" in body:

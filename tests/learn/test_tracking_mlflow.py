@@ -6,8 +6,11 @@ into its own folder. A real sqlite store in a temporary project; real (tiny) tor
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sqlite3
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -147,6 +150,19 @@ def test_a_copied_project_logs_into_its_own_folder(trained, project, tmp_path, m
     orig_files = sorted(p for p in (project / "mlartifacts").rglob("*") if p.is_file())
     monkeypatch.setenv("WORKBENCH_HOME", str(copy))
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{copy / 'mlflow.db'}")
+    # a fresh process in the copy loads the champion from the copy's files, the original's out of reach
+    hidden = project / "mlartifacts.hidden"
+    (project / "mlartifacts").rename(hidden)
+    try:
+        code = ("from workbench.hydro.legmodel import load_leg_model; "
+                "print(load_leg_model('lstm').describe()['model_version'])")
+        env = {**os.environ, "WORKBENCH_HOME": str(copy), "MLFLOW_TRACKING_URI": f"sqlite:///{copy / 'mlflow.db'}"}
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=copy,
+                             timeout=300)
+        assert out.returncode == 0 and out.stdout.split()[-1] == "1", out.stderr[-2000:]
+        assert "was copied or moved" in out.stderr
+    finally:
+        hidden.rename(project / "mlartifacts")
     note = tmp_path / "note.txt"
     note.write_text("logged from the copy\n")
     setup_mlflow(None, "fed-lstm")  # what every verb does first
