@@ -17,7 +17,7 @@ a worker that was killed for the trials it still owed. Workers die with the comm
 SIGTERM, even its SIGKILL: :mod:`workbench.procs`), and their specification travels on stdin, so
 nothing is left in the temp folder. Each trial is one
 ``train(cfg)`` call with fewer epochs and windows and no test scoring, a child MLflow run (pruned
-trials end KILLED), pruned on the validation loss by Optuna's median rule after
+trials end KILLED, tagged ``state=pruned``), pruned on the validation loss by Optuna's median rule after
 ``n_warmup_steps`` epochs. The best
 trial (lowest validation loss, never the test score) has its logged model registered under
 the ``tuned`` alias; its parameters go to ``best.json`` as ``--set`` overrides for ``workbench train``.
