@@ -399,6 +399,28 @@ def test_tune_killed_at_random_moments(tmp_path, learn_inputs):
                [out.parent, tmp_path / ".optuna"])
 
 
+def test_train_ensemble_killed_at_random_moments(tmp_path, learn_inputs):
+    data, cfg = learn_inputs
+    out = tmp_path / "models" / "ens"
+    base = ("train-ensemble", "--config", str(cfg), "--data", str(data), "--no-mlflow", "--set",
+            "trainer.max_epochs=1", "--quiet", "--out", str(out))
+
+    def state() -> str:
+        import torch
+
+        assert read_marker(out)["verb"] == "train-ensemble"
+        rec = json.loads((out / "ensemble.json").read_text())
+        dirs = sorted(p.name for p in out.iterdir() if p.is_dir())
+        assert dirs == [m["dir"] for m in rec["members"]], "ensemble.json and the member folders disagree"
+        for d in dirs:
+            json.loads((out / d / "model.json").read_text())
+            torch.load(out / d / "weights.pt", map_location="cpu", weights_only=False)
+        return {2: "a", 3: "b"}[len(dirs)]
+
+    kill_cycle("train-ensemble", tmp_path, {"a": (*base, "--members", "2"), "b": (*base, "--members", "3")}, state,
+               [out.parent])
+
+
 # -- interpolate (one Parquet file) --------------------------------------------------------------------------
 
 
