@@ -502,11 +502,18 @@ class StepwiseSelection:
         zc = stats.norm.isf(self.settings.prune_alpha / (2 * max(len(own), 1)))
         keep = list(own)
         gr = cand.fit.grams
-        # backward elimination: drop the weakest entry and refit until every entry left is significant
+        # backward elimination: drop the weakest entry and refit until every entry left is significant;
+        # an entry outside its plausible range whose column is nearly that of a plausible entry in
+        # the same channel is that entry's alias (tz = 0.02 fy makes x_fz_tz = 1.5 read as x_fz_fy =
+        # 0.03) and goes first, whatever its z
         while len(keep) > 1:
             names = [n for n in cand.names if n not in own] + keep
             f = lsq.fit(gr.subset(names), problem.weights, problem.settings.hac_lags)
             co, se = f.coefs(), f.stderr()
+            alias = _implausible_alias(e, gr, keep, co)
+            if alias is not None:
+                keep.remove(alias)
+                continue
             z = {n: abs(co[n]) / se[n] if se[n] > 0 else 0.0 for n in keep}
             weakest = min(keep, key=z.get)
             if z[weakest] >= zc:
@@ -597,6 +604,42 @@ def _parabola_min(x: np.ndarray, y: np.ndarray) -> float | None:
     """Vertex of the parabola through three points (None when it opens downwards)."""
     a, b, _ = np.polyfit(x, y, 2)
     return float(-b / (2 * a)) if a > 0 else None
+
+
+def _implausible_alias(e: Effect, gr: lsq.Grams, keep: list[str], coefs: dict, collinear: float = 0.95) -> str | None:
+    """The most implausible of ``keep`` (qualified names of ``e``'s entries) that aliases a plausible one.
+
+    Two entries alias when their columns in the same channel are nearly proportional (|cosine|
+    at least ``collinear`` over the training blocks); only the plausible one of the two is
+    physics, the other reads the same signal through a proportional source.
+    """
+    def outside(n: str) -> float:
+        short = n.split(".", 1)[1]
+        if not e.implausible({short: coefs[n]}):
+            return 0.0
+        rng = e.ranges.get(short) or next((r for pat, r in e.ranges.items()
+                                            if pat.endswith("*") and short.startswith(pat[:-1])), (0.0, 0.0))
+        return abs(coefs[n]) / max(abs(rng[0]), abs(rng[1]), 1e-300)
+
+    bad = sorted((n for n in keep if outside(n) > 0), key=outside, reverse=True)
+    if not bad:
+        return None
+    pos = {n: i for i, n in enumerate(gr.names)}
+    train = ~gr.heldout
+    for n in bad:
+        for c in range(6):
+            cols = list(gr.chan_cols[c])
+            if pos[n] not in cols:
+                continue
+            g = gr.G[c][train].sum(axis=0)
+            i = cols.index(pos[n])
+            for m in keep:
+                if m == n or outside(m) > 0 or pos[m] not in cols:
+                    continue
+                j = cols.index(pos[m])
+                if abs(g[i, j]) >= collinear * np.sqrt(max(g[i, i] * g[j, j], 1e-300)):
+                    return n
+    return None
 
 
 def _implausible(c: Candidate) -> str | None:
