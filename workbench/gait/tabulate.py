@@ -321,7 +321,7 @@ class TabulatedLegModel(LegForceModel):
                 "interp_time_s": self.interp_time_s, "direct_calls": self.direct_calls}
 
     # -- the interpolating provider -------------------------------------------------------------
-    def _provider(self, motion: LegMotion) -> Callable[[np.ndarray], np.ndarray]:
+    def _provider(self, motion: LegMotion) -> Callable[..., np.ndarray]:
         g = self.gaits
         table = self.table
         n_ticks = motion.shape[1]
@@ -338,51 +338,51 @@ class TabulatedLegModel(LegForceModel):
         if self.source.history_order:
             filters = self.source.history_filters()                         # level, then history terms
 
-            def levels(flow):
-                coef = [_filter_flow(flow, taps) for taps in filters]
+            def levels(flow, lo, hi):
+                coef = [_filter_flow(flow, taps, lo, hi) for taps in filters]
                 return coef[0], coef[1:]
         else:
             kernel = self.flow_kernel
 
-            def levels(flow):
-                return _filter_flow(flow, kernel), []
+            def levels(flow, lo, hi):
+                return _filter_flow(flow, kernel, lo, hi), []
 
-        # a converged gait's flow is frozen by the simulator: its legs' rows are not read again
-        last: dict = {"flow": None, "raw": None}
+        def provider(flow: np.ndarray, legs: np.ndarray | None = None, lo: int = 0,
+                     hi: int | None = None) -> np.ndarray:
+            """Wrenches (legs, hi - lo, 6) of some legs (rows; all by default) over ticks lo .. hi - 1.
 
-        def provider(flow: np.ndarray) -> np.ndarray:
+            ``flow`` is the whole (4B, T) history (the flow-history terms look back before ``lo``).
+            A leg's numbers depend on its own flow only, never on which other legs are asked.
+            """
             t_start = time.perf_counter()
-            t_model = table.model_time_s
+            t_model, t_head = table.model_time_s, self.startup_time_s
             flow = np.asarray(flow, float)
-            if last["flow"] is None or last["flow"].shape != flow.shape:
-                rows = np.arange(flow.shape[0])
-                last["raw"] = np.empty((*flow.shape, 6))
-            else:
-                rows = np.nonzero(~(flow == last["flow"]).all(axis=1))[0]
-            if rows.size:
-                level, terms = levels(flow[rows])
-                legs = s_of_leg[rows]
-                g0 = np.floor(level / table.step).astype(np.int64)
-                # nodes each shape needs: its legs' lowest and highest flows plus the kernel's reach
-                lo = np.full(n_shapes, np.iinfo(np.int64).max)
-                hi = np.full(n_shapes, np.iinfo(np.int64).min)
-                np.minimum.at(lo, legs, g0.min(axis=1) + offs[0])
-                np.maximum.at(hi, legs, g0.max(axis=1) + offs[-1])
-                table.ensure(lo, hi)
-                read = table.read(legs, m0[rows], tp[rows], level)
-                raw = read[..., :6].astype(float)
-                for k, a in enumerate(terms):
-                    raw += a[..., None] * read[..., 6 * (k + 1):6 * (k + 2)]
-                last["raw"][rows] = raw
-            last["flow"] = flow.copy()
-            out = last["raw"].copy()
-            t_head = self.startup_time_s
-            if head is not None:
-                head.apply(flow, out)
-            self.interp_time_s -= self.startup_time_s - t_head
-            self.interp_time_s += time.perf_counter() - t_start - (table.model_time_s - t_model)
-            return out
+            rows = np.arange(flow.shape[0]) if legs is None else np.asarray(legs, np.int64)
+            hi = flow.shape[1] if hi is None else int(hi)
+            # the start-up ticks are corrected from the tabulated wrench of ticks 0 .. m - 1
+            start = 0 if head is not None and lo < head.m else int(lo)
+            end = max(hi, head.m) if head is not None and start == 0 else hi
+            sub = flow[rows]
+            level, terms = levels(sub, start, end)
+            shape_of = s_of_leg[rows]
+            g0 = np.floor(level / table.step).astype(np.int64)
+            # nodes each shape needs: its legs' lowest and highest flows plus the kernel's reach
+            lo_n = np.full(n_shapes, np.iinfo(np.int64).max)
+            hi_n = np.full(n_shapes, np.iinfo(np.int64).min)
+            np.minimum.at(lo_n, shape_of, g0.min(axis=1) + offs[0])
+            np.maximum.at(hi_n, shape_of, g0.max(axis=1) + offs[-1])
+            table.ensure(lo_n, hi_n)
+            read = table.read(shape_of, m0[rows, start:end], tp[rows, start:end], level)
+            out = read[..., :6].astype(float)
+            for k, a in enumerate(terms):
+                out += a[..., None] * read[..., 6 * (k + 1):6 * (k + 2)]
+            if head is not None and start == 0:
+                head.apply(rows, sub, out)
+            self.interp_time_s += (time.perf_counter() - t_start - (table.model_time_s - t_model)
+                                   - (self.startup_time_s - t_head))
+            return out[:, lo - start:hi - start]
 
+        provider.partial = True  # the simulator may ask for some legs over some ticks (leg_wrench_provider)
         return provider
 
 
@@ -391,9 +391,10 @@ class _Head:
 
     Within the model's memory of the start a direct rollout sees a padded history (a window net
     repeats the first tick, a filter starts at rest), which the periodic table cannot know. These
-    few ticks of all legs are predicted directly, at the actual flow, whenever that flow moved
-    more than ``startup_tol_mps`` since the last time; in between, the table's change from then
-    to now is added to the cached prediction.
+    few ticks of the legs asked for are predicted directly, at the actual flow, whenever one of
+    them moved more than ``startup_tol_mps`` since the last time; in between, the table's change
+    from then to now is added to the cached prediction. The simulator asks for the gaits still
+    iterating only.
     """
 
     def __init__(self, owner: "TabulatedLegModel", motion: LegMotion):
@@ -406,36 +407,56 @@ class _Head:
             **{k: (None if getattr(motion, k) is None else getattr(motion, k)[:, :self.m])
                for k in ("alpha_h_dps2", "alpha_k_dps2")})
         self.tol = owner.settings.startup_tol_mps
-        self.flow: np.ndarray | None = None
-        self.direct: np.ndarray | None = None
-        self.tab: np.ndarray | None = None
+        n = motion.shape[0]
+        self.flow = np.full((n, self.m), np.inf)
+        self.direct = np.zeros((n, self.m, 6))
+        self.tab = np.zeros((n, self.m, 6))
         self.evaluations = 0
 
-    def apply(self, flow: np.ndarray, out: np.ndarray) -> None:
-        """Replace the first ticks of ``out`` (the tabulated wrench at ``flow``) in place."""
+    def apply(self, rows: np.ndarray, flow: np.ndarray, out: np.ndarray) -> None:
+        """Replace the first ticks of ``out`` (legs ``rows``: the tabulated wrench at ``flow``, from tick 0) in place."""
         from dataclasses import replace
 
         m = self.m
         now = flow[:, :m]
-        if self.flow is None or np.abs(now - self.flow).max() > self.tol:
+        # as a whole: one leg asked for that moved makes all legs asked for new (the tighter choice: a leg
+        # whose flow crept by less than the tolerance is still predicted afresh whenever another moved)
+        moved = np.full(len(rows), not bool(np.abs(now - self.flow[rows]).max(initial=0.0) <= self.tol))
+        if moved.any():
             t0 = time.perf_counter()
-            self.direct = np.asarray(self.owner.inner.wrench(replace(self.motion, flow_speed_mps=now.copy())), float)
-            self.owner.source.windows += now.size
+            redo = rows[moved]
+            part = replace(self.motion, flow_speed_mps=np.ascontiguousarray(now[moved]),
+                           **{k: getattr(self.motion, k)[redo] for k in (
+                               "theta_h_deg", "theta_k_deg", "omega_h_dps", "omega_k_dps")},
+                           **{k: (None if getattr(self.motion, k) is None else getattr(self.motion, k)[redo])
+                              for k in ("alpha_h_dps2", "alpha_k_dps2")})
+            self.direct[redo] = np.asarray(self.owner.inner.wrench(part), float)
+            self.owner.source.windows += redo.size * m
             self.owner.startup_time_s += time.perf_counter() - t0
-            self.flow, self.tab = now.copy(), out[:, :m].copy()
+            self.flow[redo] = now[moved]
+            self.tab[redo] = out[moved, :m]
             self.evaluations += 1
-        out[:, :m] = self.direct + (out[:, :m] - self.tab)
+        out[:, :m] = self.direct[rows] + (out[:, :m] - self.tab[rows])
 
 
-def _filter_flow(flow: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Causal FIR filter of each row's flow history with weights ``kernel`` (lag 0 first); rest before t = 0."""
-    if kernel.size <= 1:
-        return flow
-    k = kernel.size
-    padded = np.concatenate([np.repeat(flow[:, :1], k - 1, axis=1), flow], axis=1)
-    out = np.zeros_like(flow)
+def _filter_flow(flow: np.ndarray, kernel: np.ndarray, lo: int = 0, hi: int | None = None) -> np.ndarray:
+    """Causal FIR filter of each row's flow history with weights ``kernel`` (lag 0 first); rest before t = 0.
+
+    Ticks ``lo .. hi - 1`` of the filtered history (all by default): the same numbers as filtering
+    the whole history and slicing.
+    """
     n = flow.shape[1]
+    hi = n if hi is None else hi
+    if kernel.size <= 1:
+        return flow[:, lo:hi]
+    k = kernel.size
+    if lo >= k - 1:
+        seg = flow[:, lo - (k - 1):hi]
+    else:
+        seg = np.concatenate([np.repeat(flow[:, :1], k - 1 - lo, axis=1), flow[:, :hi]], axis=1)
+    width = hi - lo
+    out = np.zeros((flow.shape[0], width))
     for lag, w in enumerate(kernel):
         if w != 0.0:
-            out += w * padded[:, k - 1 - lag:k - 1 - lag + n]
+            out += w * seg[:, k - 1 - lag:k - 1 - lag + width]
     return out

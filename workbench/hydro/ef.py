@@ -98,10 +98,18 @@ class EmpiricalFormula(LegForceModel):
         unit = web_normal_force_to_wrench(np.ones_like(n_x), st, self.geometry)
         k = 0.5 * p.rho_kgpm3 * p.area_m2 * p.c_r
 
-        def wrench(flow_speed_mps: np.ndarray) -> np.ndarray:
-            v_n = -np.asarray(flow_speed_mps, float) * n_x - qv_n
-            return (inertial + k * np.abs(v_n) * v_n)[..., None] * unit
+        def wrench(flow_speed_mps: np.ndarray, legs: np.ndarray | None = None, lo: int = 0,
+                   hi: int | None = None) -> np.ndarray:
+            flow = np.asarray(flow_speed_mps, float)
+            if legs is None and lo == 0 and hi is None:
+                v_n = -flow * n_x - qv_n
+                return (inertial + k * np.abs(v_n) * v_n)[..., None] * unit
+            # some legs over some ticks (the simulator's windows): the same numbers, elementwise
+            at = (slice(None) if legs is None else np.asarray(legs), slice(lo, hi))
+            v_n = -flow[at] * n_x[at] - qv_n[at]
+            return (inertial[at] + k * np.abs(v_n) * v_n)[..., None] * unit[at]
 
+        wrench.partial = True  # legs and ticks on request (workbench.hydro.simulator.leg_wrench_provider)
         return wrench
 
     def describe(self) -> dict:

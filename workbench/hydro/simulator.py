@@ -210,12 +210,22 @@ def leg_wrench_provider(leg_model: LegForceModel, motion: LegMotion) -> Callable
     fast = getattr(leg_model, "flow_provider", None)
     inner = fast(motion) if callable(fast) else (
         lambda flow: leg_model.wrench(replace(motion, flow_speed_mps=flow)))
+    # a provider marked ``partial`` computes some legs (rows) over some ticks on its own; others are sliced
+    partial = bool(getattr(inner, "partial", False))
     name = getattr(leg_model, "name", "?")
 
-    def provider(flow: np.ndarray) -> np.ndarray:
-        out = np.asarray(inner(flow), float)
-        if out.shape != (*motion.shape, 6):
-            raise ModelError(f"leg model {name!r} returned shape {out.shape}, expected {(*motion.shape, 6)}")
+    def provider(flow: np.ndarray, legs: np.ndarray | None = None, lo: int = 0, hi: int | None = None) -> np.ndarray:
+        hi = motion.shape[1] if hi is None else hi
+        whole = legs is None and lo == 0 and hi == motion.shape[1]
+        n = motion.shape[0] if legs is None else len(legs)
+        if whole or not partial:
+            out = np.asarray(inner(flow), float)
+            if not whole and out.shape == (*motion.shape, 6):
+                out = out[:, lo:hi] if legs is None else out[legs, lo:hi]
+        else:
+            out = np.asarray(inner(flow, legs=legs, lo=lo, hi=hi), float)
+        if out.shape != (n, hi - lo, 6):
+            raise ModelError(f"leg model {name!r} returned shape {out.shape}, expected {(n, hi - lo, 6)}")
         if not np.all(np.isfinite(out)):
             raise ModelError(f"leg model {name!r} returned non-finite wrenches")
         return out
@@ -465,29 +475,53 @@ class _Solve:
         self.provider = leg_wrench_provider(leg_model, self.motion)
         self.planar = _planar_coefficients(robot)
         self.calls = 0
+        #: leg-ticks predicted in the windows (what skipping frozen gaits and ticks saves)
+        self.leg_evaluations = 0
         self.model = leg_model
         self.memory = _memory_ticks(leg_model, dt_s)
 
-    def window_wrench(self, flow: np.ndarray, lo: int, hi: int) -> np.ndarray:
-        """(B, 4, hi - lo, 6) wrenches of ticks lo .. hi - 1; the whole history unless the model's memory is known.
+    def window_wrench(self, flow: np.ndarray, lo: int, hi: int, gaits: np.ndarray | None = None,
+                      prev: np.ndarray | None = None) -> np.ndarray:
+        """(B, 4, hi - lo, 6) wrenches of ticks lo .. hi - 1, computed only for what can have changed.
 
-        A window net (``seq_len`` ticks at the simulation's tick, no fast path of its own) sees the
-        current tick and the seq_len - 1 before it only, so it is run on ticks lo - memory .. hi
-        (from 0 when that reaches the start): the same numbers at a fraction of the cost.
+        ``gaits`` (a (B,) mask) with ``prev`` (this window's wrenches from the last iteration): only
+        those gaits are predicted again, the others' rows are taken from ``prev`` (a gait whose flow
+        is frozen keeps its wrenches: every model is per leg, a leg's wrench depends on its own
+        history only). A window net (``seq_len`` ticks at the simulation's tick, no fast path of its
+        own) sees the current tick and the seq_len - 1 before it only, so it is run on ticks
+        lo - memory .. hi (from 0 when that reaches the start): the same numbers at a fraction of
+        the cost. A model with a fast path gets the tick range and the legs (see
+        :func:`leg_wrench_provider`).
         """
-        if self.memory is None:
-            return self.wrench(flow)[:, :, lo:hi]
-        a = lo - self.memory if lo - self.memory > 0 else 0
-        e = min(self.n, hi + 1)
+        if gaits is None or prev is None:
+            idx = np.arange(self.b)
+        else:
+            idx = np.nonzero(gaits)[0]
+            if idx.size == 0:
+                return prev
+        prev = np.zeros((self.b, 4, hi - lo, 6)) if prev is None else prev
+        legs = (4 * idx[:, None] + np.arange(4)[None, :]).ravel()
         self.calls += 1
-        part = replace(self.motion, flow_speed_mps=flow.reshape(4 * self.b, self.n)[:, a:e],
-                       **{f: getattr(self.motion, f)[:, a:e] for f in _MOTION_SERIES
-                          if getattr(self.motion, f) is not None})
-        out = np.asarray(self.model.wrench(part), float)
-        if out.shape != (4 * self.b, e - a, 6) or not np.all(np.isfinite(out)):
-            raise ModelError(f"leg model {getattr(self.model, 'name', '?')!r} returned shape {out.shape} or "
-                             f"non-finite wrenches for ticks {a}..{e}")
-        return out.reshape(self.b, 4, e - a, 6)[:, :, lo - a:hi - a]
+        self.leg_evaluations += legs.size * (hi - lo)
+        if self.memory is None:
+            part = self.provider(flow.reshape(4 * self.b, self.n), None if idx.size == self.b else legs, lo, hi)
+            part = part.reshape(idx.size, 4, hi - lo, 6)
+        else:
+            a = lo - self.memory if lo - self.memory > 0 else 0
+            e = min(self.n, hi + 1)
+            sub = legs if idx.size < self.b else slice(None)
+            motion = replace(self.motion, flow_speed_mps=flow.reshape(4 * self.b, self.n)[sub, a:e],
+                             **{f: getattr(self.motion, f)[sub, a:e] for f in _MOTION_SERIES
+                                if getattr(self.motion, f) is not None})
+            out = np.asarray(self.model.wrench(motion), float)
+            if out.shape != (legs.size, e - a, 6) or not np.all(np.isfinite(out)):
+                raise ModelError(f"leg model {getattr(self.model, 'name', '?')!r} returned shape {out.shape} or "
+                                 f"non-finite wrenches for ticks {a}..{e}")
+            part = out.reshape(idx.size, 4, e - a, 6)[:, :, lo - a:hi - a]
+        if idx.size == self.b:
+            return part
+        prev[idx] = part                                # the last iteration's array (fresh from the model)
+        return prev
 
     def wrench(self, flow: np.ndarray) -> np.ndarray:
         """(B, 4, T, 6) load-cell wrenches of all legs for a (B, 4, T) flow history."""
@@ -736,9 +770,12 @@ def _windowed(solve: _Solve, flow, gaits: GaitBatch, tol_mps, max_iter, relaxati
         last = np.full(b, np.inf)
         active = ~failed
         state = None
+        # this window's wrenches: frozen gaits keep theirs; gaits held or given up are not predicted (zero)
+        w_win = np.zeros((b, 4, hi - lo, 6))
         acc = _Anderson(b, anderson) if anderson else None
         for _ in range(max_iter):
-            state, new = solve.swim(solve.window_wrench(flow, lo, hi), lo, hi, start)
+            w_win = solve.window_wrench(flow, lo, hi, active, w_win)
+            state, new = solve.swim(w_win, lo, hi, start)
             x = flow[:, :, lo:hi]
             change = np.abs(new - x).max(axis=(1, 2))
             # a diverging gait (non-finite, or flows no swimmer sees) is given up before it poisons the batch
