@@ -259,6 +259,35 @@ def test_virtual_lab_pool_killed_at_random_moments(tmp_path):
                state, [out.parent])
 
 
+def test_diagnose_on_a_tiny_virtual_campaign_killed_at_random_moments(tmp_path):
+    """test_kills.py's diagnose kill test needs the demo data; this one builds 24 tiny runs (fresh clones run it)."""
+    import yaml
+    from test_kills import _diagnosis_state
+
+    lab = _tiny_lab(tmp_path)
+    doc = yaml.safe_load(lab.read_text())
+    doc["tunnel"].update(cycles=3, grid={"theta_h_min_deg": [-30.0, 0.0, 10.0], "theta_k_max_deg": [-60.0, -20.0],
+                                         "frequency_hz": [0.5, 0.7], "phi_rad": [0.0]})
+    lab.write_text(yaml.safe_dump(doc))
+    env = _env(tmp_path)
+    _run(env, tmp_path, "virtual-lab", "tunnel", str(tmp_path / "raw" / "dt"), "--params", str(lab))
+    processed = tmp_path / "processed" / "dt.parquet"
+    _run(env, tmp_path, "ingest", str(tmp_path / "raw" / "dt"), "--out", str(processed), "--quiet")
+    out = tmp_path / "diagnosis" / "dt"
+    base = ("diagnose", "--processed", str(processed), "--model", "ef", "--no-mlflow", "--no-figures", "--effects",
+            "servo_lag", "--out", str(out))
+    sizes = {}
+
+    def state() -> str:
+        n = _diagnosis_state(out)
+        if n not in sizes and len(sizes) < 2:
+            sizes[n] = "ab"[len(sizes)]
+        return sizes[n]
+
+    kill_cycle("diagnose", tmp_path, {"a": (*base, "--max-runs", "16"), "b": (*base, "--max-runs", "24")}, state,
+               [out.parent], env=env)
+
+
 # -- simulate, sensitivity (deterministic) -----------------------------------------------------------------
 
 GAIT = ("theta_h_min_deg=-30", "theta_k_max_deg=-60", "frequency_hz=0.4", "alpha_rad=0,1,2,3")
