@@ -44,7 +44,7 @@ ALL_STAGES = {
 DEPENDENT = {
     f"ingest_tunnel@{NEW}", f"interpolate@{NEW}", "train", "train_16", "tune", "evaluate",
     "optimize_lstm@straight", "optimize_lstm@turn", "optimize_lstm16@straight", "optimize_lstm16@turn",
-    "virtual_pool", "score_trials", "diagnose_trajectory", "report",
+    "virtual_pool", "score_trials", "diagnose_trajectory", "report", "train_ensemble", "plan_campaign",
 }
 
 SMALL_GRID = {"theta_h_min_deg": [10.0, -50.0], "theta_k_max_deg": [-20.0, -60.0],
