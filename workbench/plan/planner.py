@@ -225,11 +225,14 @@ def plan_markdown(record: dict, out_name: str) -> str:
 
 
 def write_plan(out: Path, record: dict, s: PlanSettings, date: str | None) -> None:
-    """plan.md, then the manifest (each written atomically; the manifest last)."""
-    from workbench.atomic import check_not_raw, write_text
+    """The manifest and plan.md beside it, as one set (both new or both old after a kill).
 
-    check_not_raw(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_text(out.with_name("plan.md") if out.name != "plan.md" else out.with_suffix(".report.md"),
-               plan_markdown(record, out.name))
-    write_text(out, manifest_text(record, s, date))
+    An existing file of either name that an earlier plan-campaign did not write is refused, never replaced.
+    """
+    from workbench import atomic
+
+    report = out.with_name("plan.md") if out.name != "plan.md" else out.with_suffix(".report.md")
+    texts = {out.name: manifest_text(record, s, date), report.name: plan_markdown(record, out.name)}
+    with atomic.atomic_files(out.parent, list(texts), "plan-campaign", set_name=f"plan-campaign-{out.stem}") as tmp:
+        for name, text in texts.items():
+            tmp[name].write_text(text, encoding="utf-8")
