@@ -111,6 +111,10 @@ def run(args) -> int:
                             hint="stop that one, or choose another with --port")
     cmd = server_command(args.host, args.port, args.tracking_uri, args.artifacts)
     store = cmd[cmd.index("--backend-store-uri") + 1]
+    # a copied project's store still names the original's mlartifacts: re-point it first (sqlite only, no mlflow import)
+    from workbench.tracking import relocate_store
+
+    relocate_store(store)
     host = _probe_host(args.host)
     url = f"http://{'[' + host + ']' if ':' in host else host}:{args.port}"
     info(f"starting the MLflow UI (store: {store})")
