@@ -73,8 +73,11 @@ def test_verb_help_exits_0_with_a_description(verb, capsys):
 
 
 @pytest.mark.parametrize("argv", SUB_VERBS, ids=" ".join)
-def test_sub_verb_help_exits_0(argv, capsys):
-    assert "usage:" in _help_text(argv, capsys)
+def test_sub_verb_help_exits_0_with_a_description(argv, capsys):
+    text = _help_text(argv, capsys)
+    description = (_subcommands(VERBS[argv[0]])[argv[1]].description or "").split()
+    assert len(description) >= 4, f"workbench {' '.join(argv)} has no description"
+    assert " ".join(description[:4]) in " ".join(text.split())
 
 
 def test_no_verb_prints_help(capsys):

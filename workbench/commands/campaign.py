@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -26,14 +27,30 @@ def register(sub) -> None:
   workbench campaign list
 """)
     actions = p.add_subparsers(dest="action", metavar="ACTION", required=True)
-    v = actions.add_parser("validate", help="list every contract violation of a campaign folder")
-    v.add_argument("campaign", type=Path)
+    v = actions.add_parser(
+        "validate", help="list every contract violation of a campaign folder",
+        description="Check a campaign folder against the data contract (section 1) and the rig's plausible "
+        "ranges; print every fault with its file, run and line; exit 2 if there is any. A planned campaign "
+        "(plan-campaign's manifest, no files yet) is reported as files pending. Nothing is written.",
+        epilog="example:\n  workbench campaign validate datasets/raw/tunnel-2025-03",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    v.add_argument("campaign", type=Path, help="the campaign folder (holds campaign.toml)")
     v.set_defaults(func=run_validate)
-    a = actions.add_parser("add", help="validate, register in pipelines/campaigns.yaml, track with DVC")
-    a.add_argument("campaign", type=Path)
+    a = actions.add_parser(
+        "add", help="validate, register in pipelines/campaigns.yaml, track with DVC",
+        description="Validate the campaign, register it in pipelines/campaigns.yaml (so `dvc repro` ingests it "
+        "and every stage that depends on it runs again) and track its raw folder with `dvc add`. The raw "
+        "folder itself is never modified.",
+        epilog="example:\n  workbench campaign add datasets/raw/tunnel-2025-03\n  git add pipelines/campaigns.yaml "
+        "datasets/raw/tunnel-2025-03.dvc && dvc repro",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    a.add_argument("campaign", type=Path, help="the campaign folder (under datasets/raw/)")
     a.add_argument("--no-dvc", action="store_true", help="register only; do not run `dvc add`")
     a.set_defaults(func=run_add)
-    ls = actions.add_parser("list", help="registered campaigns with facility, runs and status")
+    ls = actions.add_parser(
+        "list", help="registered campaigns with facility, runs and status",
+        description="One line per campaign registered in pipelines/campaigns.yaml: facility, number of runs, "
+        "whether DVC tracks it and whether it is processed.")
     ls.set_defaults(func=run_list)
 
 
