@@ -450,6 +450,35 @@ def test_train_ensemble_killed_at_random_moments(tmp_path, learn_inputs):
                [out.parent])
 
 
+def test_plan_campaign_killed_at_random_moments(tmp_path, learn_inputs):
+    """The manifest and plan.md beside it are one set: the plan.md always describes the manifest there."""
+    import math
+    import tomllib
+
+    data, cfg = learn_inputs
+    env = _env(tmp_path)
+    ens = tmp_path / "models" / "ens"
+    _run(env, tmp_path, "train-ensemble", "--config", str(cfg), "--data", str(data), "--no-mlflow", "--set",
+         "trainer.max_epochs=1", "--quiet", "--out", str(ens), "--members", "2")
+    gaits = tmp_path / "straight-x.json"
+    gaits.write_text(json.dumps({"task": "straight", "model": "x", "solutions": [
+        {"rank": 1, "params": {"theta_h_min_deg": -40.0, "theta_k_max_deg": -70.0, "frequency_hz": 0.6,
+                               "alpha_rad": [0.0, math.pi, math.pi, 0.0]}}]}))
+    out = tmp_path / "plans" / "next.toml"
+    base = ("plan-campaign", "--model", str(ens), "--gaits", str(gaits), "--out", str(out), "--date", "2026-01-02",
+            "--set", "n_candidates=24", "--set", "swim_s=4", "--set", "region_points_per_cycle=6")
+
+    def state() -> str:
+        runs = tomllib.loads(out.read_text())["runs"]
+        header = (out.parent / "plan.md").read_text().splitlines()[0]
+        assert header.startswith(f"# Plan next: {len(runs)} runs,"), f"plan.md {header!r} beside {len(runs)} runs"
+        assert not any(k in r for r in runs for k in ("loadcell", "motion", "mcap"))
+        return {2: "a", 3: "b"}[len(runs)]
+
+    kill_cycle("plan-campaign", tmp_path, {"a": (*base, "--n-runs", "2"), "b": (*base, "--n-runs", "3")}, state,
+               [out.parent], env=env)
+
+
 # -- interpolate (one Parquet file) --------------------------------------------------------------------------
 
 
