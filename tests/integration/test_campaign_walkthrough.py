@@ -38,6 +38,7 @@ ALL_STAGES = {
     "optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight", "optimize_lstm@turn",
     "optimize_lstm16@straight", "optimize_lstm16@turn",
     "virtual_pool", "score_trials", "sensitivity", "diagnose", "diagnose_trajectory", "report",
+    "train_ensemble", "plan_campaign",
 }
 # What a new tunnel campaign must rerun: its own ingest and interpolation, the learned models and
 # their evaluation, and what consumes the retrained model (LSTM gaits -> pool -> scores -> report).
@@ -82,6 +83,9 @@ def _shrink(project: Path) -> None:
                   "turn": {"cap_s": 4.0, "hv_reference": [3.0, 1.6, 5.0]}}}})
     _set(p / "trials.yaml", {"pool": {"best": 1, "occlusion_fraction": 0.0},
                              "scoring": {"overlay": False}})
+    _set(p / "plan.yaml", {"ensemble": {"members": 2, "train": {"trainer.max_epochs": 1,
+                                                                "data.train_windows_per_epoch": 1000}},
+                           "plan": {"n_candidates": 24, "swim_s": 4.0, "region_points_per_cycle": 4}})
     _set(p / "diagnose.yaml", {"diagnose": {
         "data": {"max_runs": 16}, "fit": {"search_runs": 8},
         "selection": {"refine": False, "pairs": False, "max_effects": 3}}})
@@ -220,7 +224,8 @@ def test_metrics_plots_and_experiments(project):
                project, timeout=1800)
     assert _ran(out) == {"optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight",
                          "optimize_lstm@turn", "optimize_lstm16@straight", "optimize_lstm16@turn",
-                         "virtual_pool", "score_trials", "sensitivity", "diagnose_trajectory", "report"}, out[-3000:]
+                         "virtual_pool", "score_trials", "sensitivity", "diagnose_trajectory", "report",
+                         "plan_campaign"}, out[-3000:]
     table = _run(["dvc", "exp", "show", "--csv"], project, stdout_only=True)
     header, *rows = list(csv.reader(io.StringIO(table.strip())))  # quoted values hold commas (lists)
     col = header.index("optimize.nsga2.n_gen")
@@ -229,10 +234,13 @@ def test_metrics_plots_and_experiments(project):
     # exp show with the documented flags
     diff = _run(["dvc", "metrics", "diff", "HEAD", "more-generations"], project, stdout_only=True)
     assert "best_S" in diff and max(len(line) for line in diff.splitlines()) <= 120, diff
-    shown = _run(["dvc", "exp", "show", "--only-changed", "--csv"], project, stdout_only=True)
+    # as documented (README, docs/pipeline.md): changed dependency hashes (datasets/, workbench/) dropped
+    shown = _run(["dvc", "exp", "show", "--only-changed", "--drop", "^(datasets|workbench)/", "--csv"], project,
+                 stdout_only=True)
     header = next(csv.reader(io.StringIO(shown)))
     # people-sized: the knob that changed and the results it moved, not 1,260 columns
-    assert "optimize.nsga2.n_gen" in header and len(header) <= 45, header
+    assert "optimize.nsga2.n_gen" in header and "best_S.turn-lstm" in header and len(header) <= 40, header
+    assert not any(h.startswith(("datasets/", "workbench/")) for h in header), header
 
 
 def _tour_commands() -> list[str]:
