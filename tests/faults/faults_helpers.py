@@ -30,13 +30,14 @@ def timed_cli(*args: str) -> float:
     return time.perf_counter() - t0
 
 
-def kill_after(delay_s: float, *args: str) -> int | None:
+def kill_after(delay_s: float, *args: str, env: dict | None = None, cwd: Path | None = None) -> int | None:
     """Start ``workbench ARGS`` in its own process group, SIGKILL the group after ``delay_s``.
 
-    Returns the exit status when the command ended before the kill, else None.
+    Returns the exit status when the command ended before the kill, else None. ``env`` and ``cwd``
+    default to this checkout with the test environment's variables.
     """
-    env = dict(os.environ, MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.Popen([sys.executable, "-m", "workbench.cli", *args], cwd=ROOT, env=env,
+    env = env or dict(os.environ, MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1")
+    proc = subprocess.Popen([sys.executable, "-m", "workbench.cli", *args], cwd=cwd or ROOT, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         proc.wait(timeout=delay_s)

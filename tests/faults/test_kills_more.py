@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from faults_helpers import ROOT, leftovers
+from faults_helpers import ROOT, kill_after, leftovers
 from proctree import project_env, small_parquet, tiny_learn_config
 
 from workbench.atomic import MARKER, may_replace, read_marker
@@ -55,19 +55,6 @@ def _run(env: dict, cwd: Path, *args: str) -> float:
                        text=True, timeout=600)
     assert r.returncode == 0, f"workbench {' '.join(args)}:\n{r.stderr[-3000:]}"
     return time.perf_counter() - t0
-
-
-def _kill_after(env: dict, cwd: Path, delay_s: float, *args: str) -> int | None:
-    """Start ``workbench ARGS`` in its own process group; SIGKILL the group after ``delay_s`` (None), or its status."""
-    proc = subprocess.Popen([sys.executable, "-m", "workbench.cli", *args], cwd=cwd, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        proc.wait(timeout=delay_s)
-        return proc.returncode
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
-        return None
 
 
 def _env(tmp: Path) -> dict:
@@ -139,7 +126,7 @@ def kill_cycle(name: str, tmp: Path, runs: dict[str, tuple[str, ...]], state, wa
     survived = writing = 0
     for delay in _moments(name, full, kills):
         other = "b" if state() == "a" else "a"
-        rc = _kill_after(env, tmp, delay, *runs[other])
+        rc = kill_after(delay, *runs[other], env=env, cwd=tmp)
         got = state()
         if rc is not None:
             assert rc == 0 and got == other, f"{name}: ended with {rc} before the kill, set {got!r}"
@@ -570,7 +557,7 @@ def test_campaign_add_killed_at_random_moments(tmp_path):
     survived = 0
     for name, delay in zip(names[1:], _moments("campaign add", full, KILLS), strict=True):
         before = load_registry(root)["tunnel"]
-        rc = _kill_after(env, root, delay, "campaign", "add", str(folders[name]))
+        rc = kill_after(delay, "campaign", "add", str(folders[name]), env=env, cwd=root)
         survived += rc is None
         after = load_registry(root)["tunnel"]  # whole: it parses
         assert after in (before, [*before, name]), after
