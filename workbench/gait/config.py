@@ -17,10 +17,19 @@ from workbench.gait.problem import SimSettings
 from workbench.gait.run import NSGA2Settings
 from workbench.gait.space import GaitSpace
 from workbench.gait.tabulate import TabulationSettings
-from workbench.threads import check_setting
+from workbench.threads import AUTO, check_setting
 
-_TOP_KEYS = ("robot", "drag_json", "retain", "verify_direct", "torch_threads", "space", "weights", "tasks", "nsga2", "simulation",
-             "tabulation", "controller", "tracking")
+
+def check_workers(value) -> int | str:
+    """Validate a ``workers`` setting: a positive integer or ``auto`` (the cores idle at the start)."""
+    if value == AUTO:
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, str)) or not str(value).isdigit() or int(value) < 1:
+        raise ValueError(f"workers must be a positive integer or 'auto', not {value!r}")
+    return int(value)
+
+_TOP_KEYS = ("robot", "drag_json", "retain", "verify_direct", "torch_threads", "workers", "space", "weights", "tasks",
+             "nsga2", "simulation", "tabulation", "controller", "tracking")
 
 
 @dataclass(frozen=True)
@@ -57,6 +66,9 @@ class OptimizeConfig:
     #: tabulated runs: the best this many are swum again with the direct rollout and re-ranked
     verify_direct: int = 16
     torch_threads: int | str | None = "auto"
+    #: simulator worker processes: each swims its share of a population (results identical to one
+    #: worker); ``auto``: the cores idle at the start (workbench/threads.py), 1: in this process
+    workers: int | str = 1
     space: GaitSpace = GaitSpace()
     tasks: Mapping[str, TaskSettings] | None = None
     nsga2: NSGA2Settings = NSGA2Settings()
@@ -75,6 +87,10 @@ class OptimizeConfig:
         """A copy with NSGA-II settings replaced (``pop_size``, ``n_gen``, ``seed``; None keeps the file's)."""
         changes = {k: v for k, v in kw.items() if v is not None}
         return replace(self, nsga2=replace(self.nsga2, **changes)) if changes else self
+
+    def with_workers(self, workers) -> "OptimizeConfig":
+        """A copy with another ``workers`` setting (None keeps the file's); a bad value raises ValueError."""
+        return self if workers is None else replace(self, workers=check_workers(workers))
 
     def record(self) -> dict:
         """JSON-friendly record (for result files and MLflow params)."""
@@ -108,6 +124,7 @@ def config_from_dict(doc: Mapping[str, Any], path: str | Path = "gait parameters
         controller = ControllerSettings(**dict(doc.get("controller") or {}))
         tracking = TrackingSettings(**dict(doc.get("tracking") or {}))
         threads = check_setting(doc.get("torch_threads", "auto"))
+        workers = check_workers(doc.get("workers", 1))
         retain = int(doc.get("retain", 8))
         verify = int(doc.get("verify_direct", 16))
         if retain < 1 or verify < 0:
@@ -115,7 +132,7 @@ def config_from_dict(doc: Mapping[str, Any], path: str | Path = "gait parameters
         return OptimizeConfig(
             robot=str(doc.get("robot", "pipelines/robot.yaml")), drag_json=doc.get("drag_json"), retain=retain,
             verify_direct=verify,
-            torch_threads=threads, space=GaitSpace.from_dict(doc.get("space")),
+            torch_threads=threads, workers=workers, space=GaitSpace.from_dict(doc.get("space")),
             tasks=tasks, nsga2=NSGA2Settings.from_dict(doc.get("nsga2"), str(path)),
             simulation=SimSettings.from_dict(doc.get("simulation")),
             tabulation=TabulationSettings.from_dict(doc.get("tabulation")), controller=controller, tracking=tracking)
