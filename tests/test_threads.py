@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from workbench.errors import ContractError
+from workbench.errors import ContractError, ParamsError
 from workbench.threads import check_setting, idle_cores, resolve
 
 
@@ -24,7 +24,7 @@ def test_learn_and_gait_configs_refuse_a_bad_thread_count():
     from workbench.gait.config import config_from_dict as gait_config
     from workbench.learn.config import LearnConfig
 
-    with pytest.raises(ContractError, match="trainer.torch_threads"):
+    with pytest.raises(ParamsError, match=r"train\.trainer\.torch_threads: torch_threads must be"):
         LearnConfig().with_overrides({"trainer.torch_threads": 0})
     assert LearnConfig().with_overrides({"trainer.torch_threads": 2}).trainer.torch_threads == 2
     assert LearnConfig().trainer.torch_threads == "auto"

@@ -49,11 +49,12 @@ def run(args) -> int:
 
     from workbench.console import info
     from workbench.errors import ContractError
-    from workbench.learn.config import cli_config, load_section
-    from workbench.learn.tune import TuneCfg, run_study
+    from workbench.learn.config import cli_config
+    from workbench.learn.tune import TuneSettings, run_study
+    from workbench.params import load_settings
 
     cfg = cli_config(args)
-    tune = TuneCfg.from_dict(load_section(args.config, "tune"))
+    tune = load_settings(TuneSettings, args.config, "tune")
     if tune.experiment and not args.experiment:  # the tune section's experiment, unless --experiment
         cfg = cfg.with_overrides({"tracking.experiment": tune.experiment})
     over = {k: v for k, v in {"study": args.study, "storage": args.storage, "n_trials": args.n_trials,

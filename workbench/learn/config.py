@@ -1,9 +1,14 @@
 """The learning configuration: one frozen dataclass tree read from ``pipelines/learn.yaml``.
 
-``train(cfg)``, the Optuna objective and the tests all take a :class:`LearnConfig`; the CLI
+``train(cfg)``, the Optuna objective and the tests all take a :class:`LearnSettings`; the CLI
 builds it from the YAML file plus ``--set key=value`` overrides (dotted keys, YAML values), and
-the tests build the real one and shrink it. Unknown keys are refused, so a typo in the YAML is
-an error, not a silently ignored knob.
+the tests build the real one and shrink it. The tree is built by :func:`workbench.params.build`:
+an unknown key (in the file or a ``--set``) is a :class:`~workbench.errors.ParamsError` naming the
+file, the key path (``train.model.hiden_size``) and the allowed keys, so a typo in the YAML is an
+error, not a silently ignored knob.
+
+Settings classes end in ``Settings`` (issue 17); the earlier names (``LearnConfig``, ``DataSettings``,
+...) stay as aliases.
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from workbench.errors import ContractError
+from workbench.errors import ContractError, ParamsError
 from workbench.threads import check_setting
 
 #: model variants: recurrent backbones, a window MLP, and the EF-residual hybrid
@@ -23,7 +28,7 @@ FEATURES = ("flow_speed_mps", "theta_h_deg", "theta_k_deg", "omega_h_dps", "omeg
 
 
 @dataclass(frozen=True)
-class SplitCfg:
+class SplitSettings:
     """7:1:2 split by motion-parameter set, seeded; ``pin_test`` forces one matching set each into test."""
 
     fractions: tuple[float, float, float] = (0.7, 0.1, 0.2)
@@ -33,12 +38,12 @@ class SplitCfg:
 
 
 @dataclass(frozen=True)
-class DataCfg:
+class DataSettings:
     """Where the windows come from and how they are drawn."""
 
     paths: tuple[str, ...] = ()
     seq_len: int = 16
-    split: SplitCfg = field(default_factory=SplitCfg)
+    split: SplitSettings = field(default_factory=SplitSettings)
     #: training windows drawn at random (without replacement) per epoch; None: every window
     train_windows_per_epoch: int | None = None
     batch_size: int = 256
@@ -46,7 +51,7 @@ class DataCfg:
 
 
 @dataclass(frozen=True)
-class ModelCfg:
+class ModelSettings:
     """The network: paper FED-LSTM = lstm, 2 layers of 64, dropout 0.21."""
 
     variant: str = "lstm"
@@ -58,7 +63,7 @@ class ModelCfg:
 
 
 @dataclass(frozen=True)
-class OptimCfg:
+class OptimSettings:
     """Adam with the learning rate reduced on validation-loss plateaus, kept within [lr_min, lr_max]."""
 
     lr: float = 0.01
@@ -71,7 +76,7 @@ class OptimCfg:
 
 
 @dataclass(frozen=True)
-class TrainerCfg:
+class TrainerSettings:
     """Epochs, stopping and seeding."""
 
     max_epochs: int = 20
@@ -85,7 +90,7 @@ class TrainerCfg:
 
 
 @dataclass(frozen=True)
-class TrackingCfg:
+class TrackingSettings:
     """MLflow: where runs go, how they are named, what gets registered."""
 
     enabled: bool = True
@@ -99,46 +104,57 @@ class TrackingCfg:
 
 
 @dataclass(frozen=True)
-class LearnConfig:
+class LearnSettings:
     """Everything ``train(cfg)`` needs."""
 
-    data: DataCfg = field(default_factory=DataCfg)
-    model: ModelCfg = field(default_factory=ModelCfg)
-    optim: OptimCfg = field(default_factory=OptimCfg)
-    trainer: TrainerCfg = field(default_factory=TrainerCfg)
-    tracking: TrackingCfg = field(default_factory=TrackingCfg)
+    data: DataSettings = field(default_factory=DataSettings)
+    model: ModelSettings = field(default_factory=ModelSettings)
+    optim: OptimSettings = field(default_factory=OptimSettings)
+    trainer: TrainerSettings = field(default_factory=TrainerSettings)
+    tracking: TrackingSettings = field(default_factory=TrackingSettings)
     #: folder the trained model is written to (weights, config, normalisation, split, metrics); None: none
     model_dir: str | None = None
 
-    def validate(self) -> "LearnConfig":
-        """Refuse values no model can train with (one-line ContractError naming the key)."""
+    def validate(self, *, path: str | Path | None = None, key: str = "train") -> "LearnSettings":
+        """Refuse values no model can train with (a one-line ParamsError naming the file and key path)."""
         m, d, o = self.model, self.data, self.optim
+
+        def bad(where: str, fault: str, hint: str | None = None) -> ParamsError:
+            return ParamsError(fault, path=path, where=f"{key}.{where}", hint=hint)
+
         if m.variant not in VARIANTS:
-            raise ContractError(f"model.variant {m.variant!r} unknown", hint=f"one of {', '.join(VARIANTS)}")
+            raise bad("model.variant", f"unknown variant {m.variant!r}", f"one of {', '.join(VARIANTS)}")
         if m.backbone not in ("lstm", "gru", "mlp"):
-            raise ContractError(f"model.backbone {m.backbone!r} unknown", hint="lstm, gru or mlp")
-        if d.seq_len < 1 or m.hidden_size < 1 or m.num_layers < 1 or d.batch_size < 1:
-            raise ContractError("data.seq_len, model.hidden_size, model.num_layers and data.batch_size must be >= 1")
+            raise bad("model.backbone", f"unknown backbone {m.backbone!r}", "lstm, gru or mlp")
+        for where, value in (("data.seq_len", d.seq_len), ("model.hidden_size", m.hidden_size),
+                             ("model.num_layers", m.num_layers), ("data.batch_size", d.batch_size)):
+            if value < 1:
+                raise bad(where, f"must be >= 1, got {value}")
         if not 0 <= m.dropout < 1:
-            raise ContractError(f"model.dropout {m.dropout} outside [0, 1)")
+            raise bad("model.dropout", f"{m.dropout} outside [0, 1)")
         if not 0 < o.lr_min <= o.lr_max:
-            raise ContractError(f"optim.lr_min {o.lr_min} / lr_max {o.lr_max} inconsistent")
+            raise bad("optim.lr_min", f"lr_min {o.lr_min} / lr_max {o.lr_max} inconsistent")
         try:
             check_setting(self.trainer.torch_threads)
         except ValueError as exc:
-            raise ContractError(f"trainer.{exc}") from None
+            raise bad("trainer.torch_threads", str(exc)) from None
         fr = d.split.fractions
         if len(fr) != 3 or min(fr) < 0 or abs(sum(fr) - 1) > 1e-6 or fr[0] == 0:
-            raise ContractError(f"data.split.fractions {list(fr)} must be three non-negative numbers summing to 1")
+            raise bad("data.split.fractions", f"{list(fr)} must be three non-negative numbers summing to 1")
         return self
 
     def to_dict(self) -> dict:
         """Plain nested dict (JSON/YAML-serialisable)."""
         return _plain(dataclasses.asdict(self))
 
-    def with_overrides(self, overrides: Sequence[str] | Mapping[str, Any]) -> "LearnConfig":
-        """A copy with dotted-key overrides applied (``["model.hidden_size=96"]`` or a mapping)."""
+    def with_overrides(self, overrides: Sequence[str] | Mapping[str, Any]) -> "LearnSettings":
+        """A copy with dotted-key overrides applied (``["model.hidden_size=96"]`` or a mapping).
+
+        An unknown key is a ParamsError naming it (``train.model.hiden_size``) and the allowed keys.
+        """
         import yaml
+
+        from workbench.params import suggest
 
         items = overrides.items() if isinstance(overrides, Mapping) else [_split_override(s) for s in overrides]
         doc = self.to_dict()
@@ -147,12 +163,13 @@ class LearnConfig:
                 value = yaml.safe_load(value)
             node = doc
             parts = key.split(".")
-            for p in parts[:-1]:
-                if not isinstance(node.get(p), dict):
-                    raise ContractError(f"unknown configuration key {key!r}")
-                node = node[p]
-            if parts[-1] not in node:
-                raise ContractError(f"unknown configuration key {key!r}")
+            for i, p in enumerate(parts):
+                if not isinstance(node, dict) or p not in node or (i < len(parts) - 1 and not isinstance(node[p], dict)):
+                    allowed = [str(k) for k in node] if isinstance(node, dict) else []
+                    raise ParamsError(f"unknown setting '{key}'", where="train." + ".".join(parts[:i + 1]),
+                                      hint=suggest(p, allowed))
+                if i < len(parts) - 1:
+                    node = node[p]
             node[parts[-1]] = value
         return config_from_dict(doc)
 
@@ -172,54 +189,45 @@ def _plain(x):
     return x
 
 
-def _build(cls, doc: Mapping[str, Any] | None, where: str):
-    doc = dict(doc or {})
-    kwargs = {}
-    hints = {f.name: f for f in dataclasses.fields(cls)}
-    for key, value in doc.items():
-        if key not in hints:
-            raise ContractError(f"unknown configuration key '{where}{key}'",
-                                hint=f"known: {', '.join(hints)}")
-        sub = _SUBSECTIONS.get((cls, key))
-        if sub is not None:
-            value = _build(sub, value, f"{where}{key}.")
-        elif isinstance(value, list):
-            value = tuple(dict(v) if isinstance(v, Mapping) else v for v in value)
-        kwargs[key] = value
-    return cls(**kwargs)
+def config_from_dict(doc: Mapping[str, Any] | None, *, path: str | Path | None = None,
+                     key: str = "train") -> LearnSettings:
+    """Build and validate :class:`LearnSettings` from a nested mapping (the YAML's ``train`` section).
+
+    Built by :func:`workbench.params.build`: unknown keys and wrong types are a ParamsError naming
+    ``path`` and the key path under ``key``.
+    """
+    from workbench.params import build
+
+    return build(LearnSettings, doc, key=key, path=path).validate(path=path, key=key)
 
 
-_SUBSECTIONS = {
-    (LearnConfig, "data"): DataCfg,
-    (LearnConfig, "model"): ModelCfg,
-    (LearnConfig, "optim"): OptimCfg,
-    (LearnConfig, "trainer"): TrainerCfg,
-    (LearnConfig, "tracking"): TrackingCfg,
-    (DataCfg, "split"): SplitCfg,
-}
-
-
-def config_from_dict(doc: Mapping[str, Any]) -> LearnConfig:
-    """Build and validate a :class:`LearnConfig` from a nested mapping (the YAML's ``train`` section)."""
-    return _build(LearnConfig, doc, "").validate()
-
-
-def load_config(path: str | Path = "pipelines/learn.yaml", overrides: Sequence[str] = ()) -> LearnConfig:
+def load_config(path: str | Path = "pipelines/learn.yaml", overrides: Sequence[str] = ()) -> LearnSettings:
     """The ``train`` section of the learning parameter file, with overrides applied."""
-    from workbench.project import load_params
+    from workbench.params import read_section
 
-    cfg = config_from_dict(load_params(path, "train"))
+    raw, source = read_section(path, "train")
+    cfg = config_from_dict(raw, path=source)
     return cfg.with_overrides(overrides) if overrides else cfg
 
 
 def load_section(path: str | Path, section: str) -> dict:
     """Another section of the learning parameter file (``tune``, ``evaluate``) as a dict."""
-    from workbench.project import load_params
+    from workbench.params import read_section
 
-    return dict(load_params(path, section) or {})
+    return read_section(path, section)[0]
 
 
-def cli_config(args) -> LearnConfig:
+#: the names before issue 17 (settings classes end in ``Settings``); kept for existing imports
+LearnConfig = LearnSettings
+SplitCfg = SplitSettings
+DataCfg = DataSettings
+ModelCfg = ModelSettings
+OptimCfg = OptimSettings
+TrainerCfg = TrainerSettings
+TrackingCfg = TrackingSettings
+
+
+def cli_config(args) -> LearnSettings:
     """The training configuration a verb's common options describe (``--config``, ``--data``, ``--set``, ...)."""
     cfg = load_config(args.config, getattr(args, "set", None) or ())
     over: dict[str, Any] = {}

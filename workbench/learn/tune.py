@@ -45,7 +45,7 @@ PARAM_KEYS = {"seq_len": "data.seq_len", "hidden_size": "model.hidden_size", "nu
 
 
 @dataclass(frozen=True)
-class TuneCfg:
+class TuneSettings:
     """The ``tune`` section of ``pipelines/learn.yaml``."""
 
     study: str = "fed-lstm"
@@ -55,7 +55,7 @@ class TuneCfg:
     max_epochs: int = 4
     train_windows_per_epoch: int | None = 20000
     sampler_seed: int = 0
-    pruner: Mapping[str, int] = field(default_factory=lambda: {"n_startup_trials": 2, "n_warmup_steps": 1})
+    pruner: Mapping[str, Any] = field(default_factory=lambda: {"n_startup_trials": 2, "n_warmup_steps": 1})
     space: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     register_best: bool = True
     alias: str = "tuned"
@@ -70,13 +70,15 @@ class TuneCfg:
     max_retry: int = 1
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "TuneCfg":
-        """From the YAML section (unknown keys refused)."""
-        known = set(cls.__dataclass_fields__)
-        bad = [k for k in d if k not in known]
-        if bad:
-            raise ContractError(f"unknown tune keys {bad}", hint=f"known: {', '.join(sorted(known))}")
-        return cls(**dict(d))
+    def from_dict(cls, d: Mapping[str, Any] | None, *, path: str | Path | None = None) -> "TuneSettings":
+        """From the YAML's ``tune`` section (workbench.params: unknown keys, wrong types are a ParamsError)."""
+        from workbench.params import build
+
+        return build(cls, d, key="tune", path=path)
+
+
+#: the name before issue 17 (settings classes end in ``Settings``); kept for existing imports
+TuneCfg = TuneSettings
 
 
 def resolve_storage(storage: str | None, study: str, tune: "TuneCfg | None" = None):
