@@ -108,7 +108,11 @@ def test_gait_file_errors(tmp_path):
 
 
 def test_settings_refuse_unknown_keys():
-    with pytest.raises(ContractError, match="unknown pool parameter"):
-        PoolSettings.from_mapping({"fsp": 30})
-    with pytest.raises(ContractError, match="marker colour"):
+    from workbench.errors import ParamsError
+
+    with pytest.raises(ParamsError, match=r"^p\.yaml, pool\.fsp: unknown setting 'fsp' \(did you mean 'fps'\? allowed: trials_id"):
+        PoolSettings.from_mapping({"fsp": 30}, source="p.yaml")
+    with pytest.raises(ParamsError, match=r"pool\.head_marker: marker colour 'orange' is not one of red"):
         PoolSettings.from_mapping({"head_marker": "orange"})
+    with pytest.raises(ParamsError, match=r"pool\.camera_position_m: must be a list of 3 values"):
+        PoolSettings.from_mapping({"camera_position_m": [1.0, 2.0]})

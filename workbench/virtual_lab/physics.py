@@ -25,6 +25,7 @@ canonical effect definitions of the briefing's table; docs/virtual-lab.md gives 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
+from typing import Literal
 
 import numpy as np
 
@@ -39,8 +40,12 @@ LAGS = ("wagner", "first_order", "none")
 
 
 @dataclass(frozen=True)
-class TruthParams:
-    """Physical constants of the ground truth (SI). Defaults: field notes and docs/virtual-lab.md."""
+class TruthSettings:
+    """Physical constants of the ground truth (SI). Defaults: field notes and docs/virtual-lab.md.
+
+    The ``physics`` block of pipelines/virtual_lab.yaml's ``tunnel`` section, built by
+    :func:`workbench.params.build` (unknown keys, wrong types and an unknown ``lag`` are a ParamsError).
+    """
 
     rho_kgpm3: float = 1000.0
     gravity_mps2: float = 9.81
@@ -57,7 +62,7 @@ class TruthParams:
     web_mass_kg: float = 0.010
     web_volume_m3: float = 1.08e-5
     # circulatory lag of the normal force
-    lag: str = "wagner"
+    lag: Literal["wagner", "first_order", "none"] = "wagner"
     circulatory_fraction: float = 1.0
     lag_tau_chords: float = 1.5
     wagner_amplitudes: tuple[float, float] = (0.165, 0.335)
@@ -84,6 +89,10 @@ class TruthParams:
     def web_added_mass_kg(self, side_m: float) -> float:
         """Flat-plate added mass rho 0.579 (pi/4) L^3 (about 98 g for L = 0.06 m)."""
         return self.rho_kgpm3 * self.added_mass_coeff * np.pi / 4 * side_m**3
+
+
+#: the name before issue 17 (settings classes end in ``Settings``); kept for existing imports
+TruthParams = TruthSettings
 
 
 def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -135,19 +144,19 @@ class TrueLegModel(LegForceModel):
 
     name = "truth"
 
-    def __init__(self, truth: str = "rich", params: TruthParams | None = None,
+    def __init__(self, truth: str = "rich", params: TruthSettings | None = None,
                  geometry: LegGeometry = DEFAULT_GEOMETRY, ef_params: EFParams | None = None):
         if truth not in TRUTHS:
             raise ModelError(f"unknown truth {truth!r}", hint=f"one of {TRUTHS}")
         self.truth = truth
-        self.params = params or TruthParams()
+        self.params = params or TruthSettings()
         if self.params.lag not in LAGS:
             raise ModelError(f"unknown circulatory lag {self.params.lag!r}", hint=f"one of {LAGS}")
         self.geometry = geometry
         self.ef_params = ef_params or EFParams()
 
     def with_params(self, **changes) -> "TrueLegModel":
-        """A copy with some :class:`TruthParams` fields changed (how force effects are planted)."""
+        """A copy with some :class:`TruthSettings` fields changed (how force effects are planted)."""
         return TrueLegModel(self.truth, replace(self.params, **changes), self.geometry, self.ef_params)
 
     def describe(self) -> dict:

@@ -46,12 +46,11 @@ def add_cli(subparsers) -> None:
 
 def _run_cli(args) -> int:
     from workbench.console import info
-    from workbench.project import load_params
+    from workbench.params import load_settings
     from workbench.virtual_lab.pool import generate_pool
     from workbench.virtual_lab.pool_trajectories import simulated_trials, synthetic_trials
 
-    raw = load_params(args.params, "pool") if args.params else {}
-    s = PoolSettings.from_mapping(raw, source=str(args.params or "defaults"))
+    s = load_settings(PoolSettings, args.params, "pool")  # no --params: the built-in defaults
     changes: dict[str, Any] = {"trials_id": args.id or args.out.name}
     if args.models:
         changes["models"] = tuple(args.models)

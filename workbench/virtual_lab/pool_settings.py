@@ -6,11 +6,11 @@ Shared by the trajectory source (:mod:`workbench.virtual_lab.pool_trajectories`)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from workbench.contract.trials import MARKER_COLOURS
-from workbench.errors import ContractError
+from workbench.errors import ParamsError
 
 #: BGR paint of each contract colour name (saturated, mid-bright: what a printed marker looks like).
 MARKER_BGR = {"red": (40, 40, 205), "green": (60, 165, 35), "blue": (185, 75, 20), "yellow": (40, 195, 215),
@@ -96,21 +96,17 @@ class PoolSettings:
     #: trials rendered in parallel (processes)
     workers: int = 2
 
-    @classmethod
-    def from_mapping(cls, m: Mapping[str, Any] | None, *, source: str = "pool params") -> "PoolSettings":
-        """Build from a mapping (YAML), refusing unknown keys; lists become tuples."""
-        m = dict(m or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(m) - known)
-        if unknown:
-            raise ContractError(f"unknown pool parameter(s) {', '.join(unknown)}", path=source,
-                                hint=f"known: {', '.join(sorted(known))}")
-        out = {k: (tuple(v) if isinstance(v, list) else v) for k, v in m.items()}
-        s = cls(**out)
-        for name in (s.head_marker, s.tail_marker):
-            if name not in MARKER_COLOURS:
-                raise ContractError(f"marker colour {name!r} is not one of {MARKER_COLOURS}", path=source)
-        if s.width_px < 64 or s.height_px < 64 or s.fps <= 0:
-            raise ContractError("width_px, height_px must be >= 64 and fps positive", path=source)
-        return s
+    def __post_init__(self):
+        for key in ("head_marker", "tail_marker"):
+            if getattr(self, key) not in MARKER_COLOURS:
+                raise ParamsError(f"marker colour {getattr(self, key)!r} is not one of {', '.join(MARKER_COLOURS)}",
+                                  where=f"pool.{key}")
+        if self.width_px < 64 or self.height_px < 64 or self.fps <= 0:
+            raise ParamsError("width_px, height_px must be >= 64 and fps positive", where="pool")
 
+    @classmethod
+    def from_mapping(cls, m: Mapping[str, Any] | None, *, source: str | None = None) -> "PoolSettings":
+        """Build from the ``pool`` section (workbench.params: unknown keys, wrong types are a ParamsError)."""
+        from workbench.params import build
+
+        return build(cls, m, key="pool", path=source)

@@ -25,7 +25,7 @@ from workbench.errors import ParamsError
 from workbench.hydro.motion import JointSinusoid, LegMotion
 from workbench.virtual_lab import rig, writers
 from workbench.virtual_lab.effects import Effect, by_stage, parse_effects
-from workbench.virtual_lab.physics import TRUTHS, TrueLegModel, TruthParams
+from workbench.virtual_lab.physics import TRUTHS, TrueLegModel, TruthSettings
 from workbench.virtual_lab.settings import (
     FLOW_SPEEDS_MPS,
     FORMS,
@@ -175,7 +175,7 @@ def truth_model(truth: str, physics: Mapping[str, Any], effects: Iterable[Effect
     """The ground truth with the settings' physics overrides and the planted force effects."""
     from workbench.params import build
 
-    params = build(TruthParams, physics, key="tunnel.physics")
+    params = build(TruthSettings, physics, key="tunnel.physics")
     model = TrueLegModel(truth, params)
     for e in by_stage(effects, "force"):
         model = model.with_params(**e.force_changes(model.params))
