@@ -103,11 +103,21 @@ def test_drag_json_replaces_the_body_drag(tmp_path):
 
 
 def test_bad_robot_parameters_are_refused_with_the_file_named():
-    with pytest.raises(ContractError, match="unknown legs"):
+    from workbench.errors import ParamsError
+
+    with pytest.raises(ParamsError, match=r"^robot\.yaml, legs\.mirrored\[0\]: must be one of 'LF', 'RF', 'LH', 'RH', got 'RX'"):
         robot_from_dict({"legs": {"mirrored": ["RX"]}}, path="robot.yaml")
-    with pytest.raises(ContractError, match="lacks legs"):
+    with pytest.raises(ParamsError, match=r"robot\.yaml, legs\.haa_angle_deg: lacks legs \['RF', 'LH', 'RH'\]"):
         robot_from_dict({"legs": {"haa_angle_deg": {"LF": 30}}}, path="robot.yaml")
-    with pytest.raises(ContractError, match="robot.yaml"):
+    with pytest.raises(ParamsError, match=r"robot\.yaml: mass_kg and yaw_inertia_kgm2 must be positive"):
         robot_from_dict({"robot": {"mass_kg": -1}}, path="robot.yaml")
+    # a misspelt key was silently ignored before issue 17: now file, key path and the allowed keys
+    with pytest.raises(ParamsError, match=r"robot\.yaml, legs\.haa_angel_deg: unknown setting 'haa_angel_deg' "
+                                          r"\(did you mean 'haa_angle_deg'\? allowed: haa_position_m, hip_offset_m"):
+        robot_from_dict({"legs": {"haa_angel_deg": [0, 0, 0, 0]}}, path="robot.yaml")
+    with pytest.raises(ParamsError, match=r"body_drag\.below_range: must be one of .* got 'linear'"):
+        robot_from_dict({"body_drag": {"below_range": "linear"}}, path="robot.yaml")
+    with pytest.raises(ParamsError, match=r"legs\.haa_angle_deg\.XX: unknown leg 'XX'"):
+        robot_from_dict({"legs": {"haa_angle_deg": {"LF": 1, "RF": 1, "LH": 1, "RH": 1, "XX": 2}}}, path="robot.yaml")
     assert robot_from_dict({"legs": {"haa_angle_deg": [0, 0, 0, 0]}}).haa_angle_deg == (0, 0, 0, 0)
     assert len(LEG_NAMES) == 4

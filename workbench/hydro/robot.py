@@ -9,15 +9,16 @@ below are the same values, so tests and notebooks can build a robot without the 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Literal, Mapping
 
 import numpy as np
 
-from workbench.errors import ContractError
+from workbench.errors import ContractError, ParamsError
 
 #: Leg order everywhere (arrays, gait files' alpha_rad): left-front, right-front, left-hind, right-hind.
 LEG_NAMES = ("LF", "RF", "LH", "RH")
@@ -88,7 +89,7 @@ class DragLaw:
 
 
 @dataclass(frozen=True)
-class RobotParams:
+class RobotSettings:
     """Everything the simulator needs to know about the robot (SI units, body frame).
 
     Sources: Pupper geometry (StanfordQuadruped ``pupper/Config.py``: legs 0.10 m fore/aft of
@@ -180,7 +181,7 @@ class RobotParams:
         forces, _ = self.leg_rotations()
         return forces[:, :, 1]
 
-    def with_drag(self, forward: DragLaw, lateral: DragLaw, source: str) -> "RobotParams":
+    def with_drag(self, forward: DragLaw, lateral: DragLaw, source: str) -> "RobotSettings":
         """A copy with other body drag laws."""
         return replace(self, forward_drag=forward, lateral_drag=lateral, drag_source=source)
 
@@ -199,17 +200,90 @@ class RobotParams:
         }
 
 
+#: the name before issue 17 (settings classes end in ``Settings``); kept for existing imports
+RobotParams = RobotSettings
+
+
 # -- loading ---------------------------------------------------------------------------------
+Leg = Literal["LF", "RF", "LH", "RH"]
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class RobotBodySettings:
+    """The ``robot`` section of pipelines/robot.yaml (defaults: :class:`RobotSettings`'s)."""
+
+    mass_kg: float = 2.0
+    added_mass_forward_kg: float = 0.2
+    added_mass_lateral_kg: float = 1.0
+    yaw_inertia_kgm2: float = 0.033
+    added_yaw_inertia_kgm2: float = 0.013
+    munk_moment: bool = True
+
+
+@dataclass(frozen=True)
+class LegsSettings:
+    """The ``legs`` section: per-leg values as a mapping ``{LF: .., RF: .., LH: .., RH: ..}`` or a list of 4."""
+
+    haa_position_m: Mapping[str, Vec3] | tuple[Vec3, ...] | None = None
+    hip_offset_m: Vec3 | None = None
+    haa_axis: Vec3 | None = None
+    haa_angle_deg: Mapping[str, float] | tuple[float, ...] | None = None
+    mirrored: tuple[Leg, ...] | None = None
+
+
+@dataclass(frozen=True)
+class DragHeadingSettings:
+    """One heading of ``body_drag`` (``forward`` or ``lateral``); no coefficients: the paper's."""
+
+    coefficients: Vec3 | None = None
+    speed_range_mps: tuple[float, float] = PAPER_SPEED_RANGE_MPS
+
+
+@dataclass(frozen=True)
+class BodyDragSettings:
+    """The ``body_drag`` section."""
+
+    drag_json: str | None = None
+    forward: DragHeadingSettings = field(default_factory=DragHeadingSettings)
+    lateral: DragHeadingSettings = field(default_factory=DragHeadingSettings)
+    below_range: Literal["linear_to_zero", "as_fitted", "drop_intercept"] = "drop_intercept"
+    body_length_m: float = 0.40
+    strip_stations: int = 8
+    extra_yaw_damping_nms: float = 0.0
+
+
 def _per_leg(value: Any, what: str, path) -> list:
     """A per-leg value given as a mapping {LF: .., ...} or a list in LEG_NAMES order."""
+    from workbench.params import suggest
+
     if isinstance(value, Mapping):
         missing = [n for n in LEG_NAMES if n not in value]
         if missing:
-            raise ContractError(f"'{what}' lacks legs {missing}", path=path)
+            raise ParamsError(f"lacks legs {missing}", path=path, where=what, hint=f"one entry per leg {LEG_NAMES}")
+        for name in value:
+            if name not in LEG_NAMES:
+                raise ParamsError(f"unknown leg '{name}'", path=path, where=f"{what}.{name}",
+                                  hint=suggest(str(name), LEG_NAMES))
         return [value[n] for n in LEG_NAMES]
-    if isinstance(value, (list, tuple)) and len(value) == 4:
+    if len(value) == 4:
         return list(value)
-    raise ContractError(f"'{what}' needs one entry per leg {LEG_NAMES}", path=path)
+    raise ParamsError(f"needs one entry per leg {LEG_NAMES}, got {len(value)}", path=path, where=what)
+
+
+def _leg_kwargs(legs: LegsSettings, path) -> dict[str, Any]:
+    kwargs: dict[str, Any] = {}
+    if legs.haa_position_m is not None:
+        kwargs["haa_position_m"] = tuple(tuple(row) for row in _per_leg(legs.haa_position_m, "legs.haa_position_m", path))
+    if legs.haa_angle_deg is not None:
+        kwargs["haa_angle_deg"] = tuple(_per_leg(legs.haa_angle_deg, "legs.haa_angle_deg", path))
+    if legs.hip_offset_m is not None:
+        kwargs["hip_offset_m"] = legs.hip_offset_m
+    if legs.haa_axis is not None:
+        kwargs["haa_axis"] = legs.haa_axis
+    if legs.mirrored is not None:
+        kwargs["mirrored"] = tuple(n in legs.mirrored for n in LEG_NAMES)
+    return kwargs
 
 
 def read_drag_json(path: str | Path, below_range: str = "drop_intercept",
@@ -234,63 +308,41 @@ def read_drag_json(path: str | Path, below_range: str = "drop_intercept",
 
 
 def robot_from_dict(doc: Mapping[str, Any], *, drag_json: str | Path | None = None,
-                    path: str | Path | None = None) -> RobotParams:
-    """Build :class:`RobotParams` from the parsed ``pipelines/robot.yaml`` (sections robot, legs, body_drag).
+                    path: str | Path | None = None) -> RobotSettings:
+    """Build :class:`RobotSettings` from the parsed ``pipelines/robot.yaml`` (sections robot, legs, body_drag).
 
-    ``drag_json`` (or ``body_drag.drag_json`` in the file) replaces the drag laws by a fitted
-    ``drag.json``; otherwise the file's coefficients (the paper's by default) are used.
+    Each section is built by :func:`workbench.params.build`: an unknown key or a value of the wrong
+    type is a ParamsError naming the file and key path (``legs.haa_angel_deg``). ``drag_json`` (or
+    ``body_drag.drag_json`` in the file) replaces the drag laws by a fitted ``drag.json``; otherwise
+    the file's coefficients (the paper's by default) are used. Other top-level sections
+    (``simulation``) are the simulator's.
     """
-    where = path or "robot parameters"
-    body = dict(doc.get("robot", {}))
-    legs = dict(doc.get("legs", {}))
-    drag = dict(doc.get("body_drag", {}))
-    kwargs: dict[str, Any] = {}
-    for key in ("mass_kg", "added_mass_forward_kg", "added_mass_lateral_kg", "yaw_inertia_kgm2",
-                "added_yaw_inertia_kgm2"):
-        if key in body:
-            kwargs[key] = float(body[key])
-    if "munk_moment" in body:
-        kwargs["munk_moment"] = bool(body["munk_moment"])
-    if "haa_position_m" in legs:
-        kwargs["haa_position_m"] = tuple(tuple(float(v) for v in row)
-                                         for row in _per_leg(legs["haa_position_m"], "legs.haa_position_m", where))
-    if "hip_offset_m" in legs:
-        kwargs["hip_offset_m"] = tuple(float(v) for v in legs["hip_offset_m"])
-    if "haa_axis" in legs:
-        kwargs["haa_axis"] = tuple(float(v) for v in legs["haa_axis"])
-    if "haa_angle_deg" in legs:
-        kwargs["haa_angle_deg"] = tuple(float(v) for v in _per_leg(legs["haa_angle_deg"], "legs.haa_angle_deg", where))
-    if "mirrored" in legs:
-        unknown = [n for n in legs["mirrored"] if n not in LEG_NAMES]
-        if unknown:
-            raise ContractError(f"'legs.mirrored' names unknown legs {unknown}", path=where)
-        kwargs["mirrored"] = tuple(n in legs["mirrored"] for n in LEG_NAMES)
-    for key, cast in (("body_length_m", float), ("strip_stations", int), ("extra_yaw_damping_nms", float)):
-        if key in drag:
-            kwargs[key] = cast(drag[key])
-    below = str(drag.get("below_range", "drop_intercept"))
-    if below not in BELOW_RANGE_MODES:
-        raise ContractError(f"'body_drag.below_range' must be one of {BELOW_RANGE_MODES}", path=where)
-    laws = {}
-    for heading, default in (("forward", PAPER_FORWARD_DRAG), ("lateral", PAPER_LATERAL_DRAG)):
-        entry = dict(drag.get(heading, {}))
-        coeffs = tuple(float(c) for c in entry.get("coefficients", default))
-        rng = tuple(float(v) for v in entry.get("speed_range_mps", PAPER_SPEED_RANGE_MPS))
-        laws[heading] = DragLaw(coeffs, rng, below)
+    from workbench.params import build
+
+    if not isinstance(doc, Mapping):
+        raise ParamsError("must be a mapping of sections (robot, legs, body_drag, simulation)", path=path)
+    body = build(RobotBodySettings, doc.get("robot"), key="robot", path=path)
+    legs = build(LegsSettings, doc.get("legs"), key="legs", path=path)
+    drag = build(BodyDragSettings, doc.get("body_drag"), key="body_drag", path=path)
+    laws = {heading: DragLaw(entry.coefficients or default, entry.speed_range_mps, drag.below_range)
+            for heading, entry, default in (("forward", drag.forward, PAPER_FORWARD_DRAG),
+                                            ("lateral", drag.lateral, PAPER_LATERAL_DRAG))}
     paper = laws["forward"].coefficients == PAPER_FORWARD_DRAG and laws["lateral"].coefficients == PAPER_LATERAL_DRAG
-    source = "paper" if paper else str(where)
-    drag_json = drag_json or drag.get("drag_json")
+    source = "paper" if paper else str(path or "robot parameters")
+    drag_json = drag_json or drag.drag_json
     if drag_json:
-        laws["forward"], laws["lateral"] = read_drag_json(drag_json, below)
+        laws["forward"], laws["lateral"] = read_drag_json(drag_json, drag.below_range)
         source = str(drag_json)
     try:
-        return RobotParams(forward_drag=laws["forward"], lateral_drag=laws["lateral"], drag_source=source, **kwargs)
+        return RobotSettings(**dataclasses.asdict(body), **_leg_kwargs(legs, path), body_length_m=drag.body_length_m,
+                             strip_stations=drag.strip_stations, extra_yaw_damping_nms=drag.extra_yaw_damping_nms,
+                             forward_drag=laws["forward"], lateral_drag=laws["lateral"], drag_source=source)
     except ValueError as exc:
-        raise ContractError(str(exc), path=where) from None
+        raise ParamsError(str(exc), path=path) from None
 
 
-def load_robot(path: str | Path = "pipelines/robot.yaml", *, drag_json: str | Path | None = None) -> RobotParams:
+def load_robot(path: str | Path = "pipelines/robot.yaml", *, drag_json: str | Path | None = None) -> RobotSettings:
     """Load the robot constants from a pipeline parameter file (and optionally a fitted drag.json)."""
-    from workbench.project import load_params
+    from workbench.params import read_document
 
-    return robot_from_dict(load_params(path), drag_json=drag_json, path=path)
+    return robot_from_dict(read_document(path), drag_json=drag_json, path=path)
