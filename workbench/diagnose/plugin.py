@@ -3,13 +3,9 @@
 ``load_leg_model("augmented:datasets/diagnosis/demo-tunnel-ef")`` (a folder or its
 ``augmented_model.json``) returns the load-cell reading model;
 ``"augmented-physical:<path>"`` the physical leg only (for the simulator and the optimiser).
-No heavy imports here.
+No heavy imports here. The three loaders below are entries of the ``workbench.leg_models``
+entry-point group in ``pyproject.toml`` (read by :mod:`workbench.hydro.legmodel`).
 """
-
-from workbench.hydro.legmodel import register_loader
-
-register_loader("augmented:", "workbench.diagnose.plugin:load")
-register_loader("augmented-physical:", "workbench.diagnose.plugin:load_physical")
 
 
 def load(spec: str, **kwargs):
@@ -44,10 +40,3 @@ def load_path(path: str, **kwargs):
 
     return load_augmented(p, **kwargs)
 
-
-try:  # the core gained path loaders in this project; older cores only know prefixes
-    from workbench.hydro.legmodel import register_path_loader
-
-    register_path_loader("workbench.diagnose.plugin:load_path")
-except ImportError:  # pragma: no cover
-    pass

@@ -1,21 +1,8 @@
-"""Light plugin: tells :func:`workbench.hydro.legmodel.load_leg_model` where learned models come from.
+"""Where learned leg models come from (kept for the DVC stages that list this file as a dependency).
 
-``load_leg_model("lstm")`` -> the registered champion FED-LSTM (see
-:mod:`workbench.learn.registry`); ``load_leg_model("models:/fed-lstm@tuned")`` or
-``"models:/fed-lstm/3"`` -> that registry version; ``load_leg_model("datasets/models/fed-lstm-16")``
--> the saved model folder at that path (what pipeline stages use: a path is a DVC dep). No torch
-or mlflow import here.
+The loaders are entries of the ``workbench.leg_models`` entry-point group in ``pyproject.toml``
+(read by :mod:`workbench.hydro.legmodel`): ``load_leg_model("lstm")`` -> the registered champion
+FED-LSTM (:func:`workbench.learn.registry.load_champion`); ``"models:/fed-lstm@tuned"`` or
+``"models:/fed-lstm/3"`` -> that registry version (``load_model_uri``); a saved model folder by its
+path, ``"datasets/models/fed-lstm-16"`` -> ``load_path``. Nothing registers here any more.
 """
-
-from workbench.hydro.legmodel import register_loader
-
-register_loader("lstm", "workbench.learn.registry:load_champion")
-# a prefix loader is registered under a name ending in ":"; it matches every "models:/..." spec
-register_loader("models:", "workbench.learn.registry:load_model_uri")
-
-try:  # a saved model folder by its path (cores without path loaders only know names and prefixes)
-    from workbench.hydro.legmodel import register_path_loader
-
-    register_path_loader("workbench.learn.registry:load_path")
-except ImportError:  # pragma: no cover
-    pass
