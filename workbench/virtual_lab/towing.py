@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 from scipy import signal
@@ -210,24 +210,11 @@ def _run(p: TowPlan, s: TowingSettings, seed: int, root: Path, calibration: np.n
     pos_tick = np.round(pos_tick / q) * q if q > 0 else pos_tick
     carriage_cols = writers.carriage_columns(ticks, pos_tick, rig.trigger_level(ticks, log.edges_s, TRIGGER_HIGH_S))
     lc_cols = writers.loadcell_columns(t_daq, reading, sync_lc)
-    files: dict[str, str] = {}
-    record: dict[str, Any] = {}
-    if p.form == "mcap":
-        files["mcap"] = f"runs/{p.id}.mcap"
-        rec = rig.recorder_origin_ns(seed, p.index, s.date)
-        lat = rig.run_rng(seed, p.index, "mcap")
-        lc_ns = rig.recorder_log_ns(rec, t_ctrl, log.t0_s, lat, s.clocks.recorder_latency_s)
-        ca_ns = rig.recorder_log_ns(rec, ticks, log.t0_s, lat, s.clocks.recorder_latency_s)
-        writers.write_mcap(root / files["mcap"], writers.mcap_towing_streams(lc_cols, lc_ns, carriage_cols, ca_ns))
-        record["recorder_origin_ns"] = int(rec)
-    else:
-        files["loadcell"] = f"runs/{p.id}.loadcell.{'bin' if p.form == 'bin' else 'csv'}"
-        files["carriage"] = f"runs/{p.id}.carriage.csv"
-        writers.write_csv(root / files["carriage"], carriage_cols)
-        if p.form == "bin":
-            record["bin"] = writers.write_bin(root / files["loadcell"], t_daq, reading, sync_lc, calibration)
-        else:
-            writers.write_csv(root / files["loadcell"], lc_cols)
+    files, record = writers.write_run(
+        root, p.id, p.form, recorder=(seed, p.index, s.date), latency_s=s.clocks.recorder_latency_s,
+        loadcell=(lc_cols, t_ctrl), partner=("carriage", carriage_cols, ticks), t0_s=log.t0_s,
+        mcap_streams=writers.mcap_towing_streams,
+        write_loadcell_bin=lambda path: writers.write_bin(path, t_daq, reading, sync_lc, calibration))
     record.update({
         "form": p.form, "files": files, "heading": p.heading, "speed_mps": p.speed_mps,
         "steady_drag_n": float(drag_n(coeffs, p.speed_mps, b.ramp_speed_mps)),

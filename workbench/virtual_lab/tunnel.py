@@ -362,27 +362,16 @@ def _finish(run: _Run, wrench: np.ndarray, root: Path, s: TunnelSettings, fx: li
     measured = None if run.tick_meas is None else (run.tick_meas[:, 0], run.tick_meas[:, 1])
     motion_cols = writers.motion_columns(ticks, run.tick_cmd[:, 0], run.tick_cmd[:, 1], sync_tick, measured)
     lc_cols = writers.loadcell_columns(run.t_daq, reading, sync_lc)
-    files: dict[str, str] = {}
-    record: dict[str, Any] = {}
-    if p.form == "mcap":
-        files["mcap"] = f"runs/{p.id}.mcap"
-        rec = rig.recorder_origin_ns(seed, p.index, s.date)
-        lat = rig.run_rng(seed, p.index, "mcap")
-        lc_ns = rig.recorder_log_ns(rec, run.t_ctrl, log.t0_s, lat, s.clocks.recorder_latency_s)
-        mo_ns = rig.recorder_log_ns(rec, ticks, log.t0_s, lat, s.clocks.recorder_latency_s)
-        writers.write_mcap(root / files["mcap"], writers.mcap_tunnel_streams(lc_cols, lc_ns, motion_cols, mo_ns))
-        record["recorder_origin_ns"] = int(rec)
-    else:
-        files["loadcell"] = f"runs/{p.id}.loadcell.{'bin' if p.form == 'bin' else 'csv'}"
-        files["motion"] = f"runs/{p.id}.motion.csv"
-        writers.write_csv(root / files["motion"], motion_cols)
-        if p.form == "bin":
-            spec = {"mid_frame": True, "corrupt": 3, "drop": 2} if faults else None
-            record["bin"] = writers.write_bin(root / files["loadcell"], run.t_daq, reading, sync_lc, calibration,
-                                              spec, rig.run_rng(seed, p.index, "bin"))
-            record["bin"]["counter_wraps"] = bool(np.floor(run.t_daq[0] / _WRAP_S) != np.floor(run.t_daq[-1] / _WRAP_S))
-        else:
-            writers.write_csv(root / files["loadcell"], lc_cols)
+    def write_loadcell_bin(path: Path) -> dict:
+        spec = {"mid_frame": True, "corrupt": 3, "drop": 2} if faults else None
+        out = writers.write_bin(path, run.t_daq, reading, sync_lc, calibration, spec, rig.run_rng(seed, p.index, "bin"))
+        out["counter_wraps"] = bool(np.floor(run.t_daq[0] / _WRAP_S) != np.floor(run.t_daq[-1] / _WRAP_S))
+        return out
+
+    files, record = writers.write_run(
+        root, p.id, p.form, recorder=(seed, p.index, s.date), latency_s=s.clocks.recorder_latency_s,
+        loadcell=(lc_cols, run.t_ctrl), partner=("motion", motion_cols, ticks), t0_s=log.t0_s,
+        mcap_streams=writers.mcap_tunnel_streams, write_loadcell_bin=write_loadcell_bin)
     record.update({
         "form": p.form, "files": files, "flow_speed_mps": p.flow_speed_mps, "params": dict(p.params),
         "cycles": p.cycles,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import polars as pl
@@ -229,18 +229,46 @@ def run_files(run_id: str, form: str, partner: str) -> dict[str, str]:
 
 
 def write_json(path: Path, obj: Any) -> None:
-    """Pretty JSON with sorted-in-order keys as given and a trailing newline."""
-    path.write_text(json.dumps(obj, indent=2, default=_json_default) + "\n", encoding="utf-8")
+    """Pretty JSON with keys in the order given and a trailing newline (:func:`workbench.atomic.json_text`).
+
+    A plain write: the generator builds the whole folder in a hidden sibling and swaps it in at once.
+    """
+    from workbench.atomic import json_text
+
+    path.write_text(json_text(obj), encoding="utf-8")
 
 
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+def write_run(root: Path, run_id: str, form: str, *, recorder: tuple[int, int, str], latency_s: tuple[float, float],
+              loadcell: tuple[Mapping[str, np.ndarray], np.ndarray], partner: tuple[str, Mapping[str, np.ndarray],
+                                                                                  np.ndarray],
+              t0_s: float, mcap_streams: Callable, write_loadcell_bin: Callable[[Path], dict]
+              ) -> tuple[dict[str, str], dict[str, Any]]:
+    """One run's raw files in its form; returns the manifest's file entries and the truth record's part.
+
+    ``loadcell`` is (columns, controller times of its samples), ``partner`` (name, columns, tick
+    times) of the motion or carriage log; ``recorder`` (seed, run index, date) places an MCAP's log
+    times (:func:`~workbench.virtual_lab.rig.recorder_log_ns`); ``write_loadcell_bin(path)`` writes a
+    ``.bin`` capture and returns its truth record. The tunnel and the towing tank differ only in these.
+    """
+    from workbench.virtual_lab import rig
+
+    files = run_files(run_id, form, partner[0])
+    record: dict[str, Any] = {}
+    if form == "mcap":
+        seed, index, date = recorder
+        rec = rig.recorder_origin_ns(seed, index, date)
+        lat = rig.run_rng(seed, index, "mcap")
+        lc_ns = rig.recorder_log_ns(rec, loadcell[1], t0_s, lat, latency_s)
+        partner_ns = rig.recorder_log_ns(rec, partner[2], t0_s, lat, latency_s)
+        write_mcap(root / files["mcap"], mcap_streams(loadcell[0], lc_ns, partner[1], partner_ns))
+        record["recorder_origin_ns"] = int(rec)
+        return files, record
+    write_csv(root / files[partner[0]], partner[1])
+    if form == "bin":
+        record["bin"] = write_loadcell_bin(root / files["loadcell"])
+    else:
+        write_csv(root / files["loadcell"], loadcell[0])
+    return files, record
 
 
 # ------------------------------------------------------------------------- the folder
