@@ -75,6 +75,16 @@ class ParamsError(WorkbenchError):
         return self.where
 
 
+class SettingError(ParamsError, ValueError):
+    """A setting's value is wrong (out of range, not one of the choices, inconsistent with another).
+
+    Raised where the value is checked (a settings class's ``__post_init__``, the domain function that
+    takes it), usually before the file is known: the loader that read the file adds it
+    (:func:`workbench.params.build` fills ``path`` and the key). Also a ``ValueError``, so callers written
+    for the ``ValueError`` these checks raised before keep catching it.
+    """
+
+
 class ConvergenceError(WorkbenchError):
     """A numerical solver did not converge: what it produced is not a result (a fit, a flow field, a solve)."""
 

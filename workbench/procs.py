@@ -98,7 +98,7 @@ def popen(cmd: Sequence[str], *, new_group: bool = True, **kwargs) -> subprocess
     processes it starts too, and a terminal's Ctrl-C reaches it only through this process.
     """
     if "preexec_fn" in kwargs or "start_new_session" in kwargs:
-        raise ValueError("popen sets the child's process group and parent-death signal itself")
+        raise TypeError("popen sets the child's process group and parent-death signal itself")
     proc = subprocess.Popen(list(cmd), preexec_fn=_preexec(os.getpid(), new_group), **kwargs)
     proc._wb_group = new_group  # type: ignore[attr-defined]
     _children.append(proc)

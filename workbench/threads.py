@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import os
 
+from workbench.errors import SettingError
+
 AUTO = "auto"
 
 
@@ -19,7 +21,7 @@ def check_setting(value) -> int | str | None:
     if value is None or value == AUTO:
         return value
     if isinstance(value, bool) or not isinstance(value, (int, str)) or not str(value).isdigit() or int(value) < 1:
-        raise ValueError(f"torch_threads must be a positive integer, 'auto' or null, not {value!r}")
+        raise SettingError(f"torch_threads must be a positive integer, 'auto' or null, not {value!r}")
     return int(value)
 
 

@@ -18,7 +18,7 @@ from typing import Any, Literal, Mapping
 
 import numpy as np
 
-from workbench.errors import ContractError, ParamsError
+from workbench.errors import ContractError, ParamsError, SettingError
 
 #: Leg order everywhere (arrays, gait files' alpha_rad): left-front, right-front, left-hind, right-hind.
 LEG_NAMES = ("LF", "RF", "LH", "RH")
@@ -37,7 +37,7 @@ def rodrigues(axis, angle_rad: float) -> np.ndarray:
     k = np.asarray(axis, float)
     norm = np.linalg.norm(k)
     if norm == 0:
-        raise ValueError("rotation axis has zero length")
+        raise SettingError("rotation axis has zero length")
     k = k / norm
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
     return np.eye(3) + math.sin(angle_rad) * kx + (1.0 - math.cos(angle_rad)) * (kx @ kx)
@@ -62,7 +62,7 @@ class DragLaw:
 
     def __post_init__(self):
         if self.below_range not in BELOW_RANGE_MODES:
-            raise ValueError(f"below_range must be one of {BELOW_RANGE_MODES}, got {self.below_range!r}")
+            raise SettingError(f"below_range must be one of {BELOW_RANGE_MODES}, got {self.below_range!r}")
 
     def polynomial(self, speed) -> np.ndarray:
         """The fitted polynomial c2 v^2 + c1 v + c0 (no range handling)."""
@@ -128,16 +128,16 @@ class RobotSettings:
 
     def __post_init__(self):
         if np.shape(self.haa_position_m) != (4, 3):
-            raise ValueError("haa_position_m needs one [x, y, z] per leg (4 x 3)")
+            raise SettingError("haa_position_m needs one [x, y, z] per leg (4 x 3)")
         if len(self.haa_angle_deg) != 4 or len(self.mirrored) != 4:
-            raise ValueError("haa_angle_deg and mirrored need one entry per leg")
+            raise SettingError("haa_angle_deg and mirrored need one entry per leg")
         if min(self.mass_kg, self.yaw_inertia_kgm2) <= 0:
-            raise ValueError("mass_kg and yaw_inertia_kgm2 must be positive")
+            raise SettingError("mass_kg and yaw_inertia_kgm2 must be positive")
         if min(self.added_mass_forward_kg, self.added_mass_lateral_kg, self.added_yaw_inertia_kgm2,
                self.body_length_m, self.extra_yaw_damping_nms) < 0:
-            raise ValueError("added masses, body length and yaw damping must be non-negative")
+            raise SettingError("added masses, body length and yaw damping must be non-negative")
         if self.strip_stations < 1:
-            raise ValueError("strip_stations must be at least 1")
+            raise SettingError("strip_stations must be at least 1")
 
     # -- effective inertia -------------------------------------------------------------------
     @property

@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from workbench.errors import ContractError, WorkbenchError
+from workbench.errors import ContractError, OutputError
 from workbench.virtual_lab.pool_settings import MARKER_BGR, PoolSettings
 
 
@@ -350,7 +350,7 @@ def render_trial(path: str | Path, t_s, x_m, y_m, yaw_rad, camera: TiltedCamera,
     path.parent.mkdir(parents=True, exist_ok=True)
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), s.fps, (s.width_px, s.height_px))
     if not writer.isOpened():
-        raise WorkbenchError("cannot open the video writer (mp4v)", path=path)
+        raise OutputError("cannot open the video writer (mp4v)", path=path)
     occ_video = [(start_s + a, start_s + a + d) for a, d in occlusions]
     try:
         for i in range(n):

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 from workbench.contract.columns import TUNNEL_MOTION_PARAMS
-from workbench.errors import ParamsError
+from workbench.errors import ParamsError, SettingError
 
 THETA_H_MIN_DEG = (10.0, -10.0, -30.0, -50.0)
 THETA_K_MAX_DEG = (-20.0, -40.0, -60.0, -80.0)
@@ -207,7 +207,7 @@ def _check_date(value: str) -> None:
     try:
         _dt.date.fromisoformat(str(value))
     except ValueError:
-        raise ValueError(f"date {value!r} is not YYYY-MM-DD") from None
+        raise SettingError(f"date {value!r} is not YYYY-MM-DD") from None
 
 
 @dataclass(frozen=True)

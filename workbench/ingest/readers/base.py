@@ -49,7 +49,8 @@ class ReadSpec:
             return MOTION_COLUMNS + (MOTION_FEEDBACK_COLUMNS if self.feedback else ())
         if role == "carriage":
             return CARRIAGE_COLUMNS
-        raise ValueError(role)
+        raise ContractError(f"unknown stream role {role!r}", run=self.run,
+                            hint="a stream's role is loadcell, motion or carriage")
 
 
 class RawReader(Protocol):
