@@ -28,6 +28,7 @@ from workbench.contract.columns import (
     WRENCH_CHANNELS,
 )
 from workbench.contract.serial import FRAME_SIZE, counts_from_si, encode_frames
+from workbench.errors import ContractError
 
 #: decimals written for every float column (1 us, 1 uN, 1 uN m, 1e-6 deg, 1 um)
 DECIMALS = 6
@@ -177,7 +178,7 @@ def _toml_value(v: Any) -> str:
         return str(v)
     if isinstance(v, float):
         if not np.isfinite(v):
-            raise ValueError(f"non-finite value {v} in campaign.toml")
+            raise ContractError(f"non-finite value {v} in campaign.toml", hint="the contract's numbers are finite")
         return repr(float(v))
     if isinstance(v, str):
         return json.dumps(v, ensure_ascii=False)
