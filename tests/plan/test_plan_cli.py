@@ -33,5 +33,13 @@ def test_bad_gait_file_and_unknown_setting(tmp_path, capsys):
     assert main(["plan-campaign", "--model", str(tmp_path), "--gaits", str(_gaits(tmp_path)), "--n-runs", "2",
                  "--out", str(tmp_path / "p.toml"), "--set", "ranges.bogus=1"]) == 2
     err = capsys.readouterr().err
-    assert "unknown plan range(s) ['bogus']" in err and len(err.strip().splitlines()) == 1
+    # a ParamsError: the file, the key path and the allowed keys, in one line
+    assert len(err.strip().splitlines()) == 1
+    assert "plan.yaml" in err and "plan.ranges.bogus" in err and "unknown setting 'bogus'" in err
+    assert "theta_h_min_deg" in err and "setup_s" in err
     assert not (tmp_path / "p.toml").exists()
+    # a bad bound: the key path and the fault
+    assert main(["plan-campaign", "--model", str(tmp_path), "--gaits", str(_gaits(tmp_path)), "--n-runs", "2",
+                 "--out", str(tmp_path / "p.toml"), "--set", "ranges.frequency_hz=[0.6, 0.3]"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "plan.ranges" in err and "frequency_hz: lower bound 0.6" in err

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from workbench.commands._help import add_verb
 
 EXAMPLES = """\
@@ -44,35 +46,82 @@ def register(sub) -> None:
                                                                                "goes beside it")
     p.add_argument("--diagnosis", type=Path, metavar="DIR", help="a `workbench diagnose` folder (or diagnosis.json): "
                    "effects flagged ambiguous_with get runs that tell them apart")
-    p.add_argument("--params", type=Path, default=Path("pipelines/plan.yaml"),
-                   help="YAML with a 'plan' section (default: %(default)s)")
+    p.add_argument("--params", type=Path, default=None,
+                   help="YAML with a 'plan' section (default: pipelines/plan.yaml; built-in defaults "
+                        "where it is absent)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a key of the plan section, e.g. --set ranges.cycles=3 (repeatable)")
     p.add_argument("--id", help="campaign id of the plan (default: from the --out file name)")
     p.add_argument("--date", help="date of the manifest, YYYY-MM-DD (default: today)")
     p.add_argument("--robot", type=Path, default=Path("pipelines/robot.yaml"), help="robot constants for the swims")
     p.add_argument("--drag", type=Path, help="drag.json of the body (workbench fit-drag) for the swims")
+    p.add_argument("--ef-legs", action="store_true",
+                   help="swim every gait file's gaits with EF legs (default: with the model each file's gaits were "
+                        "optimised with, tabulated as the optimiser does; EF where that model is not available)")
     p.set_defaults(func=run)
 
 
+def own_legs(root: str | Path | None = None, fallback_note: list | None = None):
+    """``legs`` for :func:`workbench.plan.region.operating_region`: each gait file swum with its own model.
+
+    The model is the gait file's ``model_spec`` (else ``model_source.model_path``, else ``model``),
+    a path taken as is or under ``root``; a window net without a flow provider of its own (the
+    FED-LSTM) is tabulated with the file's ``settings.tabulation``, as the optimiser swam it
+    (:class:`workbench.gait.tabulate.TabulatedLegModel`). A model that cannot be loaded falls back
+    to EF legs, with the reason in the note (and the region's ``leg_models``).
+    """
+    from pathlib import Path
+
+    from workbench.errors import WorkbenchError
+    from workbench.gait.tabulate import TabulatedLegModel, TabulationSettings
+    from workbench.hydro.legmodel import load_leg_model
+    from workbench.hydro.simulator import DEFAULT_DT_S
+
+    cache: dict = {}
+
+    def legs(path, doc: dict, gaits):
+        spec = doc.get("model_spec") or (doc.get("model_source") or {}).get("model_path") or doc.get("model")
+        if not spec:
+            return None, "EF (the gait file names no model)"
+        spec = str(spec)
+        cand = Path(spec)
+        if not cand.exists() and root is not None and (Path(root) / spec).exists():
+            spec = str(Path(root) / spec)
+        try:
+            model = cache[spec] if spec in cache else cache.setdefault(spec, load_leg_model(spec))
+        except (WorkbenchError, OSError, ValueError) as exc:
+            return None, f"EF (fallback: the gait file's model {doc.get('model_spec') or spec!r} is not available: " \
+                         f"{str(exc).splitlines()[0][:160]})"
+        if callable(getattr(model, "flow_provider", None)) or int(getattr(model, "seq_len", 0) or 0) <= 1:
+            return model, f"{getattr(model, 'name', spec)} ({spec})"
+        tab = TabulationSettings.from_dict(((doc.get("settings") or {}).get("tabulation")))
+        return (TabulatedLegModel(model, gaits, tab, sim_dt_s=DEFAULT_DT_S),
+                f"{getattr(model, 'name', spec)} ({spec}), tabulated as the optimiser does")
+
+    return legs
+
+
 def _settings(args):
+    """The ``plan`` section of --params (built-in defaults where the default file is absent), --set on top."""
     import yaml
 
-    from workbench.errors import ContractError
+    from workbench.errors import ParamsError
+    from workbench.params import read_section
     from workbench.plan.planner import PlanSettings
-    from workbench.project import load_params
 
-    doc = dict(load_params(args.params, "plan") or {}) if args.params.exists() else {}
+    doc, source = read_section(args.params, "plan", default="pipelines/plan.yaml")
     for item in args.set:
         key, sep, value = item.partition("=")
         if not sep:
-            raise ContractError(f"--set {item!r} is not key=value", hint="e.g. --set ranges.cycles=3")
+            raise ParamsError(f"--set {item!r} is not key=value", where="plan", hint="e.g. --set ranges.cycles=3")
         node = doc
         parts = key.strip().split(".")
         for part in parts[:-1]:
             node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ParamsError(f"--set {item!r}: plan.{part} is not a section", path=source, where=f"plan.{key}")
         node[parts[-1]] = yaml.safe_load(value)
-    return PlanSettings.from_dict(doc)
+    return PlanSettings.from_dict(doc, path=source)
 
 
 def run(args) -> int:
@@ -82,7 +131,7 @@ def run(args) -> int:
 
     rec = plan_campaign(args.model, args.gaits, args.n_runs, args.out, diagnosis=args.diagnosis,
                         settings=_settings(args), campaign_id=args.id, date=args.date, robot_yaml=args.robot,
-                        drag_json=args.drag)
+                        drag_json=args.drag, legs=None if args.ef_legs else own_legs())
     drop = 100 * (1 - rec["total_after"] / max(rec["total_before"], 1e-30))
     info(f"planned {rec['n_runs']} runs ({rec['n_diagnosis_runs']} for the diagnosis), "
          f"{rec['tunnel_s'] / 60:.1f} tunnel minutes; region-weighted variance {drop:.0f} % lower expected")

@@ -46,27 +46,25 @@ class RigRanges:
     #: tunnel time per run besides its cycles: settle the flow, tare, start the logs (s)
     setup_s: float = 60.0
 
-    @classmethod
-    def from_dict(cls, doc: Mapping | None) -> "RigRanges":
-        """From the ``ranges`` section of pipelines/plan.yaml (unknown keys refused)."""
-        from workbench.errors import ContractError
-
-        doc = dict(doc or {})
-        unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ContractError(f"unknown plan range(s) {unknown}", where="ranges",
-                                hint=f"known: {', '.join(cls.__dataclass_fields__)}")
-        kw = {}
-        for k, v in doc.items():
-            kw[k] = tuple(float(x) for x in v) if isinstance(v, (list, tuple)) else v
-        out = cls(**kw)
+    def __post_init__(self):
+        """The rig's ranges must make sense (checked when pipelines/plan.yaml is read, see workbench.params)."""
         for k in ("theta_h_min_deg", "theta_k_max_deg", "frequency_hz", "phi_rad"):
-            lo, hi = getattr(out, k)
+            lo, hi = getattr(self, k)
             if not lo <= hi:
-                raise ContractError(f"ranges.{k}: lower bound {lo} above upper bound {hi}")
-        if out.frequency_hz[0] <= 0 or out.cycles < 1 or not out.flow_speeds_mps or min(out.flow_speeds_mps) < 0:
-            raise ContractError("ranges: frequency must be positive, cycles >= 1, flow speeds non-negative")
-        return out
+                raise ValueError(f"{k}: lower bound {lo} above upper bound {hi}")
+        if self.frequency_hz[0] <= 0 or self.cycles < 1 or not self.flow_speeds_mps or min(self.flow_speeds_mps) < 0:
+            raise ValueError("frequency must be positive, cycles >= 1, flow speeds non-negative")
+
+    @classmethod
+    def from_dict(cls, doc: Mapping | None, path=None) -> "RigRanges":
+        """From the ``ranges`` section of pipelines/plan.yaml, through :func:`workbench.params.build`.
+
+        Unknown keys, wrong types and bad bounds are a :class:`~workbench.errors.ParamsError` naming
+        the file, the key path and the allowed keys.
+        """
+        from workbench.params import build
+
+        return build(cls, doc, key="plan.ranges", path=path)
 
     def run_seconds(self, frequency_hz: float, cycles: int | None = None) -> float:
         """Tunnel time of one run: its cycles plus the setup time."""

@@ -41,16 +41,15 @@ class PlanSettings:
     motion: Mapping[str, Any] = field(default_factory=lambda: {"rate_hz": 65.0, "feedback": False})
 
     @classmethod
-    def from_dict(cls, doc: Mapping | None) -> "PlanSettings":
-        """From the ``plan`` section (unknown keys refused)."""
-        doc = dict(doc or {})
-        unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ContractError(f"unknown plan setting(s) {unknown}", where="plan",
-                                hint=f"known: {', '.join(cls.__dataclass_fields__)}")
-        if "ranges" in doc:
-            doc["ranges"] = RigRanges.from_dict(doc["ranges"])
-        return cls(**doc)
+    def from_dict(cls, doc: Mapping | None, path: str | Path | None = None) -> "PlanSettings":
+        """From the ``plan`` section, through :func:`workbench.params.build`.
+
+        Unknown keys, wrong types and bad ranges are a :class:`~workbench.errors.ParamsError` naming
+        ``path``, the key path and the allowed keys.
+        """
+        from workbench.params import build
+
+        return build(cls, doc, key="plan", path=path)
 
 
 def _plan_id(out: Path, given: str | None) -> str:
@@ -65,12 +64,13 @@ def _plan_id(out: Path, given: str | None) -> str:
 def plan_campaign(ensemble_dir: str | Path, gait_files: Sequence[str | Path], n_runs: int, out: str | Path, *,
                   diagnosis: str | Path | None = None, settings: PlanSettings | None = None,
                   campaign_id: str | None = None, date: str | None = None, robot_yaml: str | Path = "pipelines/robot.yaml",
-                  drag_json: str | Path | None = None, write: bool = True, region=None) -> dict:
+                  drag_json: str | Path | None = None, write: bool = True, region=None, legs=None) -> dict:
     """Propose ``n_runs`` runs (plus the diagnosis's) and write ``out`` and ``plan.md`` beside it.
 
     Returns the plan record (runs with their reasons and gains, region variance before/after,
     tunnel time, costs). ``region``: an operating region already computed from ``gait_files``
-    (:func:`~workbench.plan.region.operating_region`), to skip the swims.
+    (:func:`~workbench.plan.region.operating_region`), to skip the swims; ``legs``: which legs swim
+    each gait file's gaits (see there; default EF).
     """
     from workbench.learn.ensemble import load_ensemble
     from workbench.plan.acquisition import IntegratedVariance, greedy_select, random_candidates
@@ -87,7 +87,7 @@ def plan_campaign(ensemble_dir: str | Path, gait_files: Sequence[str | Path], n_
     if region is None:
         region = operating_region(gait_files, robot_yaml=robot_yaml, drag_json=drag_json, duration_s=s.swim_s,
                                   cycles=s.region_cycles, points_per_cycle=s.region_points_per_cycle,
-                                  max_rank=s.max_rank)
+                                  max_rank=s.max_rank, legs=legs)
     t_region = time.perf_counter()
     cands = random_candidates(s.ranges, s.n_candidates, s.seed)
     forced: list[int] = []
