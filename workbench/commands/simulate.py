@@ -72,18 +72,13 @@ def parse_gait(tokens: list[str]) -> dict:
 
 def read_gaits_file(path, ranks: list[int] | None) -> list[tuple[str, dict]]:
     """(label, params) of the solutions in a gaits file (contract section 5), optionally some ranks."""
-    import json
     from pathlib import Path
 
+    from workbench.contract.jsonfile import read_json
     from workbench.errors import ContractError
 
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ContractError("gaits file not found", path=p) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ContractError(f"not valid JSON: {exc}", path=p) from None
+    doc = read_json(p, "gaits file")
     sols = doc.get("solutions") if isinstance(doc, dict) else None
     if not isinstance(sols, list) or not sols:
         raise ContractError("no 'solutions' list", path=p)

@@ -9,7 +9,6 @@ data contract section 5), or from synthetic paths (:func:`straight_path`, :func:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -112,12 +111,9 @@ def synthetic_trials(s: PoolSettings | None = None, seed: int | None = None) -> 
 # --- trajectories from gait files through the simulator ----------------------------------------
 def read_gait_file(path: Path) -> dict:
     """A gait file (data contract section 5) with its solutions sorted by rank."""
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ContractError("gait file not found", path=path, hint="run `workbench optimize` first") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ContractError(f"not valid JSON: {exc}", path=path) from None
+    from workbench.contract.jsonfile import read_json
+
+    doc = read_json(path, "gait file", hint="run `workbench optimize` first")
     sols = doc.get("solutions") if isinstance(doc, dict) else None
     if not isinstance(sols, list) or not sols:
         raise ContractError("no 'solutions' list", path=path)
