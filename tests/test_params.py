@@ -163,22 +163,51 @@ def test_build_accepts_a_ready_instance_and_refuses_a_non_mapping():
 
 def _repository_sections():
     from workbench.gait.run import NSGA2Settings
+    from workbench.hydro.robot import BodyDragSettings, LegsSettings, RobotBodySettings
+    from workbench.learn.config import LearnSettings
+    from workbench.learn.tune import TuneSettings
     from workbench.signals.interpolation import InterpolationParams
     from workbench.trials.params import ScoringParams
+    from workbench.virtual_lab.physics import TruthSettings
+    from workbench.virtual_lab.pool_settings import PoolSettings
 
     return [(IngestParams, "pipelines/ingest.yaml", "ingest"),
             (InterpolationParams, "pipelines/ingest.yaml", "interpolate"),
             (DragFitParams, "pipelines/drag.yaml", "fit"),
             (ScoringParams, "pipelines/trials.yaml", "scoring"),
-            (NSGA2Settings, "pipelines/gait.yaml", "optimize.nsga2")]
+            (NSGA2Settings, "pipelines/gait.yaml", "optimize.nsga2"),
+            (LearnSettings, "pipelines/learn.yaml", "train"),
+            (TuneSettings, "pipelines/learn.yaml", "tune"),
+            (PoolSettings, "pipelines/trials.yaml", "pool"),
+            (TruthSettings, "pipelines/virtual_lab.yaml", "tunnel.physics"),
+            (RobotBodySettings, "pipelines/robot.yaml", "robot"),
+            (LegsSettings, "pipelines/robot.yaml", "legs"),
+            (BodyDragSettings, "pipelines/robot.yaml", "body_drag")]
 
 
 def _same(value, raw) -> bool:
     if hasattr(value, "__dataclass_fields__"):
-        return all(_same(getattr(value, k), v) for k, v in raw.items())
+        return _same_settings(value, raw)
+    if isinstance(raw, dict):
+        return isinstance(value, dict) and set(value) == set(raw) and all(_same(value[k], v) for k, v in raw.items())
     if isinstance(value, (tuple, list)):
-        return list(value) == list(raw)
-    return value == raw
+        return isinstance(raw, list) and len(value) == len(raw) and all(_same(a, b) for a, b in zip(value, raw, strict=True))
+    return value == raw and isinstance(value, bool) == isinstance(raw, bool)
+
+
+def _same_settings(value, raw) -> bool:
+    """Every value the file gives arrives unchanged; every key it leaves out keeps the class's default."""
+    import dataclasses
+
+    for f in dataclasses.fields(value):
+        if f.name in raw:
+            ok = _same(getattr(value, f.name), raw[f.name])
+        else:
+            default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+            ok = getattr(value, f.name) == default
+        if not ok:
+            return False
+    return set(raw) <= {f.name for f in dataclasses.fields(value)}
 
 
 @pytest.mark.parametrize("cls, file, section", _repository_sections(), ids=lambda x: getattr(x, "__name__", x))
@@ -188,7 +217,17 @@ def test_the_repository_parameter_files_load_and_every_value_arrives(cls, file, 
     for part in section.split("."):
         raw = raw[part]
     s = load_settings(cls, path, section)
-    assert raw and all(_same(getattr(s, k), v) for k, v in raw.items())
+    assert raw and _same_settings(s, raw)
+    assert not _same_settings(s, {**raw, next(iter(raw)): "changed"})  # the check itself can fail
+
+
+def test_the_migrated_loaders_read_the_repository_files_like_load_settings():
+    from workbench.hydro.robot import RobotSettings, load_robot
+    from workbench.learn.config import LearnSettings, load_config
+
+    assert load_config(REPO / "pipelines/learn.yaml") == load_settings(LearnSettings, REPO / "pipelines/learn.yaml",
+                                                                       "train")
+    assert load_robot(REPO / "pipelines/robot.yaml") == RobotSettings()  # the documented defaults are the file's
 
 
 @pytest.mark.parametrize("argv", [
