@@ -10,7 +10,6 @@ below are the same values, so tests and notebooks can build a robot without the 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -211,14 +210,14 @@ Vec3 = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class RobotBodySettings:
-    """The ``robot`` section of pipelines/robot.yaml (defaults: :class:`RobotSettings`'s)."""
+    """The ``robot`` section of pipelines/robot.yaml (a key left out: :class:`RobotSettings`'s default)."""
 
-    mass_kg: float = 2.0
-    added_mass_forward_kg: float = 0.2
-    added_mass_lateral_kg: float = 1.0
-    yaw_inertia_kgm2: float = 0.033
-    added_yaw_inertia_kgm2: float = 0.013
-    munk_moment: bool = True
+    mass_kg: float | None = None
+    added_mass_forward_kg: float | None = None
+    added_mass_lateral_kg: float | None = None
+    yaw_inertia_kgm2: float | None = None
+    added_yaw_inertia_kgm2: float | None = None
+    munk_moment: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -248,9 +247,10 @@ class BodyDragSettings:
     forward: DragHeadingSettings = field(default_factory=DragHeadingSettings)
     lateral: DragHeadingSettings = field(default_factory=DragHeadingSettings)
     below_range: Literal["linear_to_zero", "as_fitted", "drop_intercept"] = "drop_intercept"
-    body_length_m: float = 0.40
-    strip_stations: int = 8
-    extra_yaw_damping_nms: float = 0.0
+    #: None: :class:`RobotSettings`'s default
+    body_length_m: float | None = None
+    strip_stations: int | None = None
+    extra_yaw_damping_nms: float | None = None
 
 
 def _per_leg(value: Any, what: str, path) -> list:
@@ -289,13 +289,10 @@ def _leg_kwargs(legs: LegsSettings, path) -> dict[str, Any]:
 def read_drag_json(path: str | Path, below_range: str = "drop_intercept",
                    default_range: tuple[float, float] = PAPER_SPEED_RANGE_MPS) -> tuple[DragLaw, DragLaw]:
     """Forward and lateral drag laws from a ``drag.json`` (data contract section 4)."""
+    from workbench.contract.jsonfile import read_json
+
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ContractError("drag file not found", path=p, hint="run `workbench fit-drag` first") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ContractError(f"not valid JSON: {exc}", path=p) from None
+    doc = read_json(p, "drag file", hint="run `workbench fit-drag` first")
     laws = []
     for heading in ("forward", "lateral"):
         entry = doc.get(heading) if isinstance(doc, dict) else None
@@ -334,8 +331,9 @@ def robot_from_dict(doc: Mapping[str, Any], *, drag_json: str | Path | None = No
         laws["forward"], laws["lateral"] = read_drag_json(drag_json, drag.below_range)
         source = str(drag_json)
     try:
-        return RobotSettings(**dataclasses.asdict(body), **_leg_kwargs(legs, path), body_length_m=drag.body_length_m,
-                             strip_stations=drag.strip_stations, extra_yaw_damping_nms=drag.extra_yaw_damping_nms,
+        given = {**dataclasses.asdict(body), "body_length_m": drag.body_length_m, "strip_stations": drag.strip_stations,
+                 "extra_yaw_damping_nms": drag.extra_yaw_damping_nms}
+        return RobotSettings(**{k: v for k, v in given.items() if v is not None}, **_leg_kwargs(legs, path),
                              forward_drag=laws["forward"], lateral_drag=laws["lateral"], drag_source=source)
     except ValueError as exc:
         raise ParamsError(str(exc), path=path) from None
