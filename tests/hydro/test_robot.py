@@ -121,3 +121,21 @@ def test_bad_robot_parameters_are_refused_with_the_file_named():
         robot_from_dict({"legs": {"haa_angle_deg": {"LF": 1, "RF": 1, "LH": 1, "RH": 1, "XX": 2}}}, path="robot.yaml")
     assert robot_from_dict({"legs": {"haa_angle_deg": [0, 0, 0, 0]}}).haa_angle_deg == (0, 0, 0, 0)
     assert len(LEG_NAMES) == 4
+
+
+def test_the_robot_files_simulation_section_is_checked_with_the_file_named(tmp_path):
+    import yaml
+
+    from workbench.commands.simulate import robot_simulation_settings
+    from workbench.errors import ParamsError
+
+    doc = yaml.safe_load((project_root() / "pipelines/robot.yaml").read_text())
+    assert robot_simulation_settings(str(project_root() / "pipelines/robot.yaml")) == doc["simulation"]
+    path = tmp_path / "robot.yaml"
+    path.write_text(yaml.safe_dump({**doc, "simulation": {"metod": "picard"}}))
+    with pytest.raises(ParamsError, match=rf"^{path}, simulation\.metod: unknown setting 'metod' \(did you mean "
+                                          r"'method'\? allowed: duration_s, dt_s"):
+        robot_simulation_settings(str(path))
+    path.write_text(yaml.safe_dump({**doc, "simulation": {"method": "picardd", "max_iter": 3}}))
+    with pytest.raises(ParamsError, match=r"simulation\.method: must be one of 'windowed', 'picard', got 'picardd'"):
+        robot_simulation_settings(str(path))

@@ -101,15 +101,11 @@ def read_gaits_file(path, ranks: list[int] | None) -> list[tuple[str, dict]]:
 
 def robot_simulation_settings(robot: str) -> dict:
     """The robot file's optional ``simulation`` section, checked by the simulator (a bad value: ParamsError)."""
-    from workbench.errors import ParamsError
     from workbench.hydro.simulator import simulation_settings
     from workbench.params import read_section
 
-    section, _ = read_section(robot, "simulation", required=False)
-    try:
-        return simulation_settings(section)
-    except ValueError as exc:
-        raise ParamsError(str(exc), path=robot, where="simulation") from None
+    section, source = read_section(robot, "simulation", required=False)
+    return simulation_settings(section, path=source)
 
 
 def run(args) -> int:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -442,27 +442,39 @@ class BodyState:
 
 
 # -- the simulation ------------------------------------------------------------------------------
-#: the ``simulation`` section of pipelines/robot.yaml: keyword arguments of :func:`simulate`
-SIM_SETTINGS = ("duration_s", "dt_s", "tol_mps", "max_iter", "relaxation", "method", "window_s", "max_window_s", "anderson")
 #: fixed-point schemes: ``windowed`` (default) or the whole-horizon ``picard`` iteration (kept for comparison)
 METHODS = ("windowed", "picard")
 
 
-def simulation_settings(doc: Mapping | None) -> dict:
-    """Validated keyword arguments for :func:`simulate` from a parameter-file section."""
-    doc = dict(doc or {})
-    unknown = sorted(set(doc) - set(SIM_SETTINGS))
-    if unknown:
-        raise ValueError(f"unknown simulation setting(s) {unknown}; known: {list(SIM_SETTINGS)}")
-    out = {}
-    for k, v in doc.items():
-        if k == "method":
-            if v not in METHODS:
-                raise ValueError(f"simulation method must be one of {METHODS}, got {v!r}")
-            out[k] = str(v)
-        else:
-            out[k] = int(v) if k in ("max_iter", "anderson") else float(v)
-    return out
+@dataclass(frozen=True)
+class SimulationSettings:
+    """The ``simulation`` section of pipelines/robot.yaml; a key left out (None) keeps :func:`simulate`'s default."""
+
+    duration_s: float | None = None
+    dt_s: float | None = None
+    tol_mps: float | None = None
+    max_iter: int | None = None
+    relaxation: float | None = None
+    method: Literal["windowed", "picard"] | None = None
+    window_s: float | None = None
+    max_window_s: float | None = None
+    anderson: int | None = None
+
+
+#: the ``simulation`` section of pipelines/robot.yaml: keyword arguments of :func:`simulate`
+SIM_SETTINGS = tuple(SimulationSettings.__dataclass_fields__)
+
+
+def simulation_settings(doc: Mapping | None, *, path=None, key: str = "simulation") -> dict:
+    """Keyword arguments for :func:`simulate` from a parameter-file section (only the keys it gives).
+
+    Built by :func:`workbench.params.build`: an unknown key, a wrong type or an unknown method is a
+    ParamsError naming ``path`` and ``simulation.<key>`` with the allowed keys or choices.
+    """
+    from workbench.params import build
+
+    settings = build(SimulationSettings, doc, key=key, path=path)
+    return {k: v for k, v in settings.__dict__.items() if v is not None}
 
 
 class _Solve:

@@ -180,15 +180,12 @@ def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None
 def _sim_settings(robot_path: Path) -> dict:
     """The robot file's fixed-point settings (scheme, tolerance, iterations), without duration and tick."""
     from workbench.hydro.simulator import simulation_settings
+    from workbench.params import read_section
 
     if not robot_path.is_file():
         return {}
-    from workbench.project import load_params
-
-    try:
-        doc = simulation_settings(load_params(robot_path).get("simulation"))
-    except ValueError as exc:
-        raise ContractError(str(exc), path=robot_path) from None
+    section, source = read_section(robot_path, "simulation", required=False)
+    doc = simulation_settings(section, path=source)
     return {k: v for k, v in doc.items() if k not in ("duration_s", "dt_s")}
 
 
