@@ -162,6 +162,7 @@ def test_build_accepts_a_ready_instance_and_refuses_a_non_mapping():
 
 
 def _repository_sections():
+    from workbench.commands.train_ensemble import EnsembleSettings
     from workbench.gait.run import NSGA2Settings
     from workbench.hydro.robot import BodyDragSettings, LegsSettings, RobotBodySettings
     from workbench.learn.config import LearnSettings
@@ -181,6 +182,7 @@ def _repository_sections():
             (PoolSettings, "pipelines/trials.yaml", "pool"),
             (TruthSettings, "pipelines/virtual_lab.yaml", "tunnel.physics"),
             (RobotBodySettings, "pipelines/robot.yaml", "robot"),
+            (EnsembleSettings, "pipelines/plan.yaml", "ensemble"),
             (LegsSettings, "pipelines/robot.yaml", "legs"),
             (BodyDragSettings, "pipelines/robot.yaml", "body_drag")]
 
@@ -235,11 +237,17 @@ def test_the_migrated_loaders_read_the_repository_files_like_load_settings():
     ["interpolate", "{tmp}/none.parquet", "--out", "{tmp}/out.parquet", "--params", "{bad}"],
     ["ingest", "{tmp}/no-campaign", "--out", "{tmp}/out.parquet", "--params", "{bad}"],
     ["score-trials", "{tmp}/no-trials", "--out", "{tmp}/out", "--params", "{bad}"],
+    ["train", "--config", "{bad}", "--data", "{tmp}/none.parquet", "--no-mlflow"],
+    ["train-ensemble", "--data", "{tmp}/none.parquet", "--out", "{tmp}/out", "--params", "{bad}", "--no-mlflow"],
+    ["virtual-lab", "pool", "{tmp}/out", "--synthetic", "--params", "{bad}"],
+    ["simulate", "--gait", "theta_h_min_deg=-30", "theta_k_max_deg=-60", "frequency_hz=0.4", "alpha_rad=0,1,2,3",
+     "--robot", "{bad}", "--duration", "1", "--out", "{tmp}/out"],
 ])
 def test_a_typo_in_a_params_file_is_one_line_and_status_2(tmp_path, capsys, argv):
     bad = _yaml(tmp_path / "bad.yaml", {
         "fit": {"plateau": {"setle_s": 0.5}}, "interpolate": {"speed_mps": [0.1]},
-        "ingest": {"lowpass_cutof_hz": 5.0}, "scoring": {"sat_minn": 3}})
+        "ingest": {"lowpass_cutof_hz": 5.0}, "scoring": {"sat_minn": 3}, "train": {"model": {"hiden_size": 3}},
+        "ensemble": {"member": 3}, "pool": {"fsp": 3}, "legs": {"haa_angel_deg": [0, 0, 0, 0]}})
     argv = [a.format(tmp=tmp_path, bad=bad) for a in argv]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()

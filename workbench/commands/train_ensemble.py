@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
 from workbench.commands._help import add_verb
 
 EXAMPLES = """\
@@ -15,6 +18,17 @@ EXAMPLES = """\
   # then: the calibration it measured (coverage of the 90 % interval, per channel, on held-out sets)
   python -c "import json; print(json.load(open('/tmp/ens/ensemble.json'))['calibration'])"
 """
+
+
+@dataclass(frozen=True)
+class EnsembleSettings:
+    """The ``ensemble`` section of pipelines/plan.yaml (``--params``)."""
+
+    #: members trained through ``train(cfg)``, seeds first_seed .. first_seed + members - 1
+    members: int = 4
+    first_seed: int = 0
+    #: dotted-key overrides of pipelines/learn.yaml's train section for the members
+    train: Mapping[str, Any] = field(default_factory=dict)
 
 
 def register(sub) -> None:
@@ -44,26 +58,23 @@ def run(args) -> int:
     from workbench.console import info
     from workbench.learn.config import cli_config
     from workbench.learn.ensemble import train_ensemble
+    from workbench.params import load_settings
 
-    sec = {}
-    if args.params:
-        from workbench.project import load_params
-
-        sec = dict(load_params(args.params, "ensemble") or {})
+    sec = load_settings(EnsembleSettings, args.params, "ensemble")  # no --params: the defaults
     cfg = cli_config(args)
-    over = dict(sec.get("train") or {})
+    over = dict(sec.train)
     # command-line --set wins over the ensemble section
     for s in args.set or ():
         over.pop(s.partition("=")[0].strip(), None)
     if over:
         cfg = cfg.with_overrides(over)
-    members = args.members or int(sec.get("members", 4))
+    members = args.members or sec.members
     from workbench.atomic import check_replaceable
 
     check_replaceable(args.out, "train-ensemble")
     info(f"train-ensemble: {members} x {cfg.model.variant} {cfg.model.hidden_size}x{cfg.model.num_layers}, "
          f"{cfg.trainer.max_epochs} epochs, data {', '.join(cfg.data.paths)}")
-    rec = train_ensemble(cfg, args.out, members=members, first_seed=int(sec.get("first_seed", 0)),
+    rec = train_ensemble(cfg, args.out, members=members, first_seed=sec.first_seed,
                          report=None if args.quiet else info)
     cal = rec["calibration"]
     for key in ("coverage_test_before", "coverage_test_after"):

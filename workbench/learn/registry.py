@@ -28,12 +28,15 @@ DEFAULT_FOLDER = "models/fed-lstm"
 
 
 def _defaults() -> tuple[str, str, Path]:
-    from workbench.project import datasets_dir, load_params
+    from workbench.learn.config import TrackingSettings
+    from workbench.params import build, read_section
+    from workbench.project import datasets_dir
 
     name, alias = DEFAULT_NAME, DEFAULT_ALIAS
     try:
-        tracking = load_params("pipelines/learn.yaml", "train").get("tracking", {}) or {}
-        name, alias = tracking.get("registered_model", name), tracking.get("alias", alias)
+        train, source = read_section("pipelines/learn.yaml", "train")
+        tracking = build(TrackingSettings, train.get("tracking"), key="train.tracking", path=source)
+        name, alias = tracking.registered_model, tracking.alias
     except Exception:  # noqa: BLE001 - no parameter file: library defaults
         pass
     return name, alias, datasets_dir() / DEFAULT_FOLDER
