@@ -48,6 +48,9 @@ def register(sub) -> None:
     p.add_argument("--pop", type=int, default=None, metavar="N", help="population size (overrides the file)")
     p.add_argument("--gens", type=int, default=None, metavar="N", help="generations (overrides the file)")
     p.add_argument("--seed", type=int, default=None, metavar="N", help="random seed (overrides the file)")
+    p.add_argument("--workers", default=None, metavar="N|auto",
+                   help="simulator processes, each swimming its share of every population and of the direct check; "
+                        "the results do not depend on it (default: the file's 'workers'; auto: the cores idle now)")
     p.add_argument("--robot", default=None, metavar="YAML", help="robot constants (default: the file's 'robot')")
     p.add_argument("--drag", default=None, metavar="JSON", help="body drag from `workbench fit-drag` (drag.json)")
     p.add_argument("--no-mlflow", action="store_true", help="do not log an MLflow run")
@@ -102,7 +105,7 @@ def run(args) -> int:
 
     cfg = load_config(args.params)
     try:
-        cfg = cfg.with_overrides(pop_size=args.pop, n_gen=args.gens, seed=args.seed)
+        cfg = cfg.with_overrides(pop_size=args.pop, n_gen=args.gens, seed=args.seed).with_workers(args.workers)
     except ValueError as exc:
         raise ContractError(str(exc), where="command line") from None
     ts = cfg.task(args.task)
@@ -120,12 +123,16 @@ def run(args) -> int:
     line = model_source_line(args.model, model)
     if line:
         info(line)
+    from workbench.gait.workers import resolve_workers
+
+    workers = resolve_workers(cfg.workers)
     info(f"optimising {args.task} gaits with leg model {args.model!r}: NSGA-II population {cfg.nsga2.pop_size}, "
-         f"{cfg.nsga2.n_gen} generations, seed {cfg.nsga2.seed}, {ts.spec.cap_s:g} s swims")
+         f"{cfg.nsga2.n_gen} generations, seed {cfg.nsga2.seed}, {ts.spec.cap_s:g} s swims, "
+         f"{workers} simulator process{'es' if workers > 1 else ''}")
     stack, show = _progress_printer(cfg.nsga2.n_gen)
     with stack:
         outcome = optimize_task(cfg, args.task, model, robot, model_label=label, model_spec=args.model,
-                                on_generation=show)
+                                on_generation=show, workers=workers)
     m = outcome.metrics
     if source:  # which registry version or folder the results come from (issue 15.1)
         outcome.gait_doc["model_source"] = source
@@ -169,7 +176,8 @@ def run(args) -> int:
         from workbench.gait.tracking import log_outcome
 
         try:
-            run_id = log_outcome(outcome, cfg.record() | {"task": args.task, "model": args.model}, folder,
+            settings = cfg.record() | {"task": args.task, "model": args.model, "workers_used": workers}
+            run_id = log_outcome(outcome, settings, folder,
                                  [gaits_path, metrics_path], model_spec=args.model, model_source=source,
                                  tracking_uri=args.tracking_uri or cfg.tracking.tracking_uri,
                                  experiment=cfg.tracking.experiment,

@@ -70,6 +70,7 @@ def verify_direct(problem: GaitProblem, result: OptimizeResult, k: int) -> tuple
 
     direct = GaitProblem(problem.spec, problem.leg_model, problem.robot, space=problem.space, sim=problem.sim,
                          tabulation=replace(problem.tabulation, mode="never"))
+    direct.workers = problem.workers  # the same worker processes swim the direct rollouts
     x = result.x[:k]
     gaits = problem.space.gaits(x)
     # the tabulated swims' flow is within about a percent of the direct one: the direct fixed point starts there
@@ -99,17 +100,39 @@ def _rows(traj: Trajectory, order: np.ndarray) -> Trajectory:
 
 def optimize_task(cfg: OptimizeConfig, task: str, leg_model: LegForceModel, robot: RobotParams, *,
                   model_label: str, model_spec: str | None = None,
-                  on_generation: Callable[[Generation], None] | None = None, plots: bool = True) -> GaitOutcome:
+                  on_generation: Callable[[Generation], None] | None = None, plots: bool = True,
+                  workers: int | None = None) -> GaitOutcome:
     """Run NSGA-II on one task with one leg model and assemble the outcome.
 
     With tabulated leg wrenches the best ``cfg.verify_direct`` of the final population are swum
     again with the direct rollout, re-ranked by the direct S, and the best ``cfg.retain`` of them
     kept with their direct objectives; otherwise the best ``retain`` are re-simulated as they were
     found, and ``resim_max_rel_diff`` shows that their recorded objectives come back.
+
+    ``workers`` processes (None: ``cfg.workers`` resolved now) swim the parts of every batch
+    (:mod:`workbench.gait.workers`); the number is recorded, the results do not depend on it.
     """
+    from workbench.gait.workers import resolve_workers, sim_workers
+
     ts = cfg.task(task)
     problem = GaitProblem(ts.spec, leg_model, robot, space=cfg.space, sim=cfg.simulation, tabulation=cfg.tabulation)
+    n_workers = resolve_workers(cfg.workers if workers is None else workers)
     t0 = time.perf_counter()
+    with sim_workers(problem, n_workers) as pool:
+        problem.workers = pool
+        try:
+            outcome = _search(cfg, ts, task, problem, robot, model_label, model_spec, on_generation, plots, t0)
+        finally:
+            problem.workers = None
+    outcome.metrics["workers"] = n_workers
+    outcome.gait_doc["workers"] = n_workers
+    return outcome
+
+
+def _search(cfg: OptimizeConfig, ts, task: str, problem: GaitProblem, robot: RobotParams, model_label: str,
+            model_spec: str | None, on_generation, plots: bool, t0: float) -> GaitOutcome:
+    """NSGA-II, the direct check or re-simulation, and the documents (see :func:`optimize_task`)."""
+    leg_model = problem.leg_model
     result = run_nsga2(problem, cfg.nsga2, ts.hv_reference, on_generation=on_generation)
     verify: dict = {}
     if problem.log.table and cfg.verify_direct > 0:

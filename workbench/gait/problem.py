@@ -92,20 +92,22 @@ class GaitProblem(Problem):
         self.tabulation = tabulation or TabulationSettings()
         self.log = EvaluationLog()
         self._flow_kernel: np.ndarray | None = None
+        #: worker processes that swim parts of each batch (workbench.gait.workers; None: this process)
+        self.workers = None
         super().__init__(n_var=len(self.space.variables), n_obj=3, n_ieq_constr=1, xl=self.space.xl, xu=self.space.xu,
                          vtype=float)
 
     # -- pymoo -----------------------------------------------------------------------------------
     def _evaluate(self, x, out, *args, **kwargs):
-        f, traj = self.evaluate_gaits(self.space.gaits(x))
+        f, residual, converged = self.objectives_of(self.space.gaits(x))
         # an unconverged gait's objectives mean nothing; keep them finite for the sorting (the constraint ranks it)
         out["F"] = np.where(np.isfinite(f), f, 1e6)
-        out["G"] = self.violation(traj)[:, None]
+        out["G"] = self.violation(residual, converged)[:, None]
 
-    def violation(self, traj: Trajectory) -> np.ndarray:
+    def violation(self, residual_mps: np.ndarray, converged: np.ndarray) -> np.ndarray:
         """(B,) constraint values: <= 0 for a converged simulation, residual / tol - 1 (capped) otherwise."""
-        g = np.minimum(np.nan_to_num(traj.residual_mps, nan=np.inf) / self.sim.tol_mps - 1.0, 1e6)
-        return np.where(traj.converged, np.minimum(g, 0.0), np.maximum(g, 1e-6))
+        g = np.minimum(np.nan_to_num(residual_mps, nan=np.inf) / self.sim.tol_mps - 1.0, 1e6)
+        return np.where(converged, np.minimum(g, 0.0), np.maximum(g, 1e-6))
 
     # -- direct use ------------------------------------------------------------------------------
     def model_for(self, gaits: GaitBatch) -> LegForceModel:
@@ -122,6 +124,8 @@ class GaitProblem(Problem):
 
     def simulate(self, gaits: GaitBatch, initial_flow: np.ndarray | None = None) -> Trajectory:
         """Swim the batch for the task's cap (one simulator call), counting the work."""
+        if self.workers is not None and len(gaits) > 1:
+            return self._in_workers(gaits, initial_flow, full=True)["traj"]
         t0 = time.perf_counter()
         model = self.model_for(gaits)
         traj = simulate(gaits, model, self.robot, duration_s=self.spec.cap_s, initial_flow=initial_flow,
@@ -133,6 +137,27 @@ class GaitProblem(Problem):
         if isinstance(model, TabulatedLegModel):
             self.log.add_table(model.stats())
         return traj
+
+    def _in_workers(self, gaits: GaitBatch, initial_flow: np.ndarray | None, full: bool) -> dict:
+        """Swim the batch in the worker processes, counting the work as :meth:`simulate` does."""
+        t0 = time.perf_counter()
+        r = self.workers.swim(gaits, initial_flow, self.tabulation.mode, full)
+        self.log.gaits += len(gaits)
+        self.log.calls += 1
+        self.log.seconds += time.perf_counter() - t0
+        self.log.unconverged += int(r["unconverged"])
+        for table in r["tables"]:
+            if table:
+                self.log.add_table(table)
+        return r
+
+    def objectives_of(self, gaits: GaitBatch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(B, 3) objectives, (B,) residuals and convergence of a batch (in the workers when there are any)."""
+        if self.workers is not None and len(gaits) > 1:
+            r = self._in_workers(gaits, None, full=False)
+            return r["f"], r["residual"], r["converged"]
+        traj = self.simulate(gaits)
+        return objectives(traj, self.spec), traj.residual_mps, traj.converged
 
     def evaluate_gaits(self, gaits: GaitBatch, initial_flow: np.ndarray | None = None) -> tuple[np.ndarray, Trajectory]:
         """(B, 3) objectives and the trajectories of a gait batch (``initial_flow``: a first guess, see simulate)."""

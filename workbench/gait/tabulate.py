@@ -419,9 +419,13 @@ class _Head:
 
         m = self.m
         now = flow[:, :m]
-        # as a whole: one leg asked for that moved makes all legs asked for new (the tighter choice: a leg
-        # whose flow crept by less than the tolerance is still predicted afresh whenever another moved)
-        moved = np.full(len(rows), not bool(np.abs(now - self.flow[rows]).max(initial=0.0) <= self.tol))
+        # per gait (its four legs are rows 4 g .. 4 g + 3): one of its legs that moved makes all four new, whatever
+        # the other gaits asked for did, so a gait's numbers do not depend on its batch (simulator workers)
+        gait = rows // 4
+        still = np.abs(now - self.flow[rows]).max(axis=1, initial=0.0) <= self.tol
+        moved_gait = np.zeros(int(gait.max(initial=0)) + 1, bool)
+        np.logical_or.at(moved_gait, gait, ~still)
+        moved = moved_gait[gait]
         if moved.any():
             t0 = time.perf_counter()
             redo = rows[moved]
