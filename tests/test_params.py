@@ -165,7 +165,7 @@ def _repository_sections():
     from workbench.commands.train_ensemble import EnsembleSettings
     from workbench.gait.run import NSGA2Settings
     from workbench.hydro.robot import BodyDragSettings, LegsSettings, RobotBodySettings
-    from workbench.learn.config import LearnSettings
+    from workbench.learn.config import EvaluateSettings, LearnSettings
     from workbench.learn.tune import TuneSettings
     from workbench.signals.interpolation import InterpolationParams
     from workbench.trials.params import ScoringParams
@@ -179,6 +179,7 @@ def _repository_sections():
             (NSGA2Settings, "pipelines/gait.yaml", "optimize.nsga2"),
             (LearnSettings, "pipelines/learn.yaml", "train"),
             (TuneSettings, "pipelines/learn.yaml", "tune"),
+            (EvaluateSettings, "pipelines/learn.yaml", "evaluate"),
             (PoolSettings, "pipelines/trials.yaml", "pool"),
             (TruthSettings, "pipelines/virtual_lab.yaml", "tunnel.physics"),
             (RobotBodySettings, "pipelines/robot.yaml", "robot"),

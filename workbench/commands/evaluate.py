@@ -46,11 +46,12 @@ def register(sub) -> None:
 def run(args) -> int:
     """Evaluate, write the metrics file and figures, log them."""
     from workbench.console import info
-    from workbench.learn.config import load_section
+    from workbench.learn.config import EvaluateSettings
+    from workbench.params import load_settings
 
-    opts = load_section(args.config, "evaluate")
+    opts = load_settings(EvaluateSettings, args.config, "evaluate")
     lines = evaluate_to_files(data=args.data, split_path=args.split, out=args.out, figures=args.figures,
-                              model=args.model or opts.get("model", "lstm"), also=args.also, options=opts,
+                              model=args.model or opts.model, also=args.also, options=opts,
                               mlflow_log=not args.no_mlflow, dvc_stage=args.dvc_stage, tracking_uri=args.tracking_uri)
     for line in lines:
         info(line)
@@ -127,10 +128,10 @@ def evaluate_to_files(*, data, split_path, out, figures, model, also, options, m
     if figures:
         from workbench.learn.figures import mse_boxplot
 
-        figs = prediction_figures(table, result, metrics, options.get("figure_sets", []),
-                                  options.get("figure_flow_speed_mps"), float(options.get("figure_cycles", 2)))
+        figs = prediction_figures(table, result, metrics, options.figure_sets, options.figure_flow_speed_mps,
+                                  options.figure_cycles)
         names = [f"prediction_{chr(ord('a') + i)}.png" for i in range(len(figs))]
-        figs.append(mse_boxplot(metrics, options.get("boxplot_channels", ("fy_n", "fz_n", "tx_nm"))))
+        figs.append(mse_boxplot(metrics, options.boxplot_channels))
         names.append("mse_boxplot.png")
         folder = Path(figures)
         # the figures are one set, swapped in together; no marker file: DVC draws every file of this plots folder
@@ -150,7 +151,7 @@ def _log_evaluation(metrics, ratios, lstm, table, out, figures, options, dvc_sta
 
     from workbench.tracking import log_artifacts, log_metrics, run_name, run_tags, tracked_run
 
-    experiment = options.get("experiment", "fed-lstm")
+    experiment = options.experiment
     d = lstm.describe()
     tags = run_tags(kind="evaluate", campaigns=table.campaigns(), variant=d.get("variant"), dvc_stage=dvc_stage,
                     model_uri=d.get("model_uri"), model_run_id=d.get("run_id"), model_version=d.get("model_version"),

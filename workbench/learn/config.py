@@ -217,6 +217,22 @@ def load_section(path: str | Path, section: str) -> dict:
     return read_section(path, section)[0]
 
 
+@dataclass(frozen=True)
+class EvaluateSettings:
+    """The ``evaluate`` section of ``pipelines/learn.yaml`` (``workbench evaluate``)."""
+
+    #: the learned model scored against the EF (registry alias, URI or folder)
+    model: str = "lstm"
+    #: partial parameter specs of the prediction figures' runs (the paper's Fig. 4 sets)
+    figure_sets: tuple[Mapping[str, float], ...] = ()
+    #: the run shown in the prediction figures (nearest measured speed; None: the first)
+    figure_flow_speed_mps: float | None = None
+    figure_cycles: float = 2.0
+    boxplot_channels: tuple[str, ...] = ("fy_n", "fz_n", "tx_nm")
+    #: MLflow experiment of the evaluate run
+    experiment: str = "fed-lstm"
+
+
 #: the names before issue 17 (settings classes end in ``Settings``); kept for existing imports
 LearnConfig = LearnSettings
 SplitCfg = SplitSettings
