@@ -32,7 +32,7 @@ DEFAULT_SPEEDS = (0.05, 0.15, 0.25)
 
 
 @dataclass(frozen=True)
-class InterpolationParams:
+class InterpolationSettings:
     """Knobs of the interpolation (section ``interpolate`` of pipelines/ingest.yaml)."""
 
     speeds_mps: tuple[float, ...] = DEFAULT_SPEEDS
@@ -44,11 +44,15 @@ class InterpolationParams:
     param_tolerance: float = 1e-6
 
     @classmethod
-    def from_mapping(cls, values: dict[str, Any] | None) -> "InterpolationParams":
+    def from_mapping(cls, values: dict[str, Any] | None) -> "InterpolationSettings":
         """From a parameter-file section (workbench.params: unknown keys and wrong types are a ParamsError)."""
         from workbench.params import build
 
         return build(cls, values, key="interpolate")
+
+
+#: the name before issue 17 (settings classes end in ``Settings``); kept for existing imports
+InterpolationParams = InterpolationSettings
 
 
 @dataclass
@@ -65,11 +69,11 @@ class InterpolationReport:
 
 def interpolate_flow_speeds(frame: pl.DataFrame, speeds: Sequence[float] = DEFAULT_SPEEDS, **kwargs) -> pl.DataFrame:
     """Measured rows plus interpolated rows at ``speeds`` (m/s); see the module docstring."""
-    params = InterpolationParams(speeds_mps=tuple(float(s) for s in speeds), **kwargs)
+    params = InterpolationSettings(speeds_mps=tuple(float(s) for s in speeds), **kwargs)
     return interpolate_with_report(frame, params)[0]
 
 
-def interpolate_with_report(frame: pl.DataFrame, params: InterpolationParams) -> tuple[pl.DataFrame, InterpolationReport]:
+def interpolate_with_report(frame: pl.DataFrame, params: InterpolationSettings) -> tuple[pl.DataFrame, InterpolationReport]:
     """:func:`interpolate_flow_speeds` that also says what it made and what it left alone."""
     missing = [c for c in ("run_id", "time_s", "flow_speed_mps", *SIGNALS, *TUNNEL_MOTION_PARAMS) if c not in frame.columns]
     if missing:
@@ -93,7 +97,7 @@ def interpolate_with_report(frame: pl.DataFrame, params: InterpolationParams) ->
     return out, report
 
 
-def _interpolate_set(group: pl.DataFrame, params: InterpolationParams, report: InterpolationReport) -> pl.DataFrame | None:
+def _interpolate_set(group: pl.DataFrame, params: InterpolationSettings, report: InterpolationReport) -> pl.DataFrame | None:
     runs = []
     for (run_id,), g in group.group_by(["run_id"], maintain_order=True):
         g = g.sort("time_s")
