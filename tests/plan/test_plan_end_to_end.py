@@ -31,9 +31,13 @@ def ensemble_dir(tmp_path_factory):
 def test_ensemble_reports_calibration_measured_on_held_out_sets(ensemble_dir):
     _, rec = ensemble_dir
     cal = rec["calibration"]
-    # the scale is fitted run by run on the validation runs; the pooled alternative is recorded beside it
-    assert cal["fitted_on"] == "val" and cal["val_runs"] >= 2 and "run by run" in cal["method"]
+    # the scale is fitted on the validation runs (cross-conformal by run); two val-fitted alternatives beside it
+    assert cal["fitted_on"] == "val" and cal["val_runs"] >= 2 and "leave-one-run-out" in cal["method"]
     assert set(cal["scale_pooled"]) == set(cal["coverage_test_pooled_scale"]) == set(rec["scale"])
+    assert set(cal["scale_run_quantile"]) == set(cal["coverage_test_run_quantile_scale"]) == set(rec["scale"])
+    if cal["val_runs"] >= 3:  # the leave-one-run-out search reached 90 % on validation, at a level of 0.9 or more
+        assert all(v >= 0.9 for v in cal["coverage_val_loro"].values())
+        assert all(0.9 <= v <= 1 for v in cal["quantile_level"].values())
     assert all(v > 0.8 for v in cal["coverage_val_after"].values())
     assert set(cal["coverage_test_after"]) == {"fx_n", "fy_n", "fz_n", "tx_nm", "ty_nm", "tz_nm"}
     assert all(0 <= v <= 1 for v in cal["coverage_test_before"].values())

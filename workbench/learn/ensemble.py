@@ -9,10 +9,14 @@ and, per channel, a 90 % interval of a *reading*::
 
 ``noise_c`` is the channel's residual noise (what the members' mean misses on the validation split
 beyond the members' own spread), and ``scale_c`` a per-channel calibration factor fitted on the
-validation split, run by run: in 90 % of the validation runs the interval covers 90 % of the
-run's readings (:func:`calibrate`; pooling the readings instead under-covered new parameter sets).
-The test split is never used to fit anything: the coverage on it, before (scale 1) and after
-calibration (and with the pooled scale, for comparison), is what ``ensemble.json`` reports.
+validation split only, by a rule fixed in advance (nothing is chosen by looking at the test split):
+the scale is the pooled quantile of the validation scores ``|y - mean| / sqrt(var + noise)`` at the
+smallest level whose *leave-one-run-out* coverage on validation is at least 90 % (cross-conformal by
+run, :func:`calibrate`). A model's error is mostly a misfit of whole parameter sets, so readings of
+one run are not exchangeable and a plain pooled 90 % quantile is optimistic for new parameter sets;
+holding out whole runs measures that on the validation split itself. The coverage on the test split,
+before (scale 1) and after calibration, is what ``ensemble.json`` reports (with two other val-fitted
+rules for comparison, never used to choose).
 
 The folder (``workbench train-ensemble``, or :func:`train_ensemble`)::
 
@@ -115,26 +119,73 @@ def _split_arrays(prepared, members: Sequence, name: str, skip: int) -> tuple[np
     return np.stack(preds), (np.concatenate(ys) if ys else np.zeros((0, 6))), rid
 
 
+def _scores(preds: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual noise per channel and the scores |y - mean| / sqrt(var + noise) (N, 6)."""
+    mu, var = preds.mean(0), preds.var(0, ddof=1)
+    mse = ((y - mu) ** 2).mean(0)
+    noise = np.maximum(mse - var.mean(0), 0.01 * mse)
+    return noise, np.abs(y - mu) / np.sqrt(var + noise)
+
+
+#: quantile levels the leave-one-run-out search tries (finest step 0.0005)
+LEVELS = np.round(np.arange(0.9, 0.99951, 0.0005), 4)
+
+
+def loro_levels(z: np.ndarray, runs: np.ndarray, target: float = 0.9,
+                levels: np.ndarray = LEVELS) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel: the smallest pooled-quantile level whose leave-one-run-out coverage is >= ``target``.
+
+    For each level and each run, the quantile of the *other* runs' scores is the threshold and the
+    held-out run's readings inside it are counted; coverage = counted / readings. Returns the
+    levels (6,) and their leave-one-run-out coverage (6,); a channel that misses ``target`` even at
+    the last level gets level 1 (the largest score) and the coverage reached there.
+    """
+    ids = np.unique(runs)
+    lev, cov = np.ones(z.shape[1]), np.zeros(z.shape[1])
+    for c in range(z.shape[1]):
+        inside = np.zeros(len(levels))
+        for r in ids:
+            held = runs == r
+            thr = np.quantile(z[~held, c], levels)
+            inside += np.searchsorted(np.sort(z[held, c]), thr, side="right")
+        frac = inside / len(z)
+        ok = np.flatnonzero(frac >= target)
+        if len(ok):
+            lev[c], cov[c] = levels[ok[0]], frac[ok[0]]
+        else:
+            cov[c] = np.mean([(z[runs == r, c] <= z[runs != r, c].max()).mean() for r in ids])
+    return lev, cov
+
+
 def calibrate(val_preds: np.ndarray, val_y: np.ndarray, runs: np.ndarray | None = None,
-              run_level: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+              detail: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-channel noise variance and 90 % scale fitted on the validation split (never on test).
 
-    ``noise_c = max(mean (y - mean_k)^2 - mean var_k, 1 % of the first)``. Without ``runs``,
-    ``scale_c`` makes the 90 % Gaussian interval cover 90 % of the pooled validation readings.
-    With ``runs`` (the run of each reading), the interval must hold run by run: ``scale_c`` is the
-    ``run_level`` quantile over validation runs of each run's own 90 % quantile, so that in a
-    fraction ``run_level`` of the runs the interval covers 90 % of the readings. A model's error is
-    mostly a misfit of whole parameter sets, not tick noise: pooled calibration on a handful of
-    validation sets under-covers new sets (measured: docs/campaigns.md).
+    ``noise_c = max(mean (y - mean_k)^2 - mean var_k, 1 % of the first)``. Without ``runs`` (or
+    with fewer than 3 validation runs), ``scale_c`` is the split-conformal quantile of the pooled
+    scores, level ``ceil((n + 1) 0.9) / n`` for n readings. With ``runs`` (the run of each reading),
+    it is the pooled quantile at the level :func:`loro_levels` finds: holding out one whole run at a
+    time, the interval fitted on the others covers 90 % of the held-out readings. ``detail`` (a dict)
+    receives the levels and that leave-one-run-out coverage.
     """
-    mu, var = val_preds.mean(0), val_preds.var(0, ddof=1)
-    mse = ((val_y - mu) ** 2).mean(0)
-    noise = np.maximum(mse - var.mean(0), 0.01 * mse)
-    z = np.abs(val_y - mu) / np.sqrt(var + noise)
-    if runs is None:
-        return noise, np.quantile(z, 0.9, axis=0) / Z90
+    noise, z = _scores(val_preds, val_y)
+    n = len(z)
+    if runs is None or len(np.unique(runs)) < 3:
+        level = min(1.0, np.ceil((n + 1) * 0.9) / max(n, 1))
+        if detail is not None:
+            detail.update(level={c: level for c in WRENCH_CHANNELS})
+        return noise, np.quantile(z, level, axis=0, method="inverted_cdf") / Z90
+    lev, cov = loro_levels(z, runs)
+    if detail is not None:
+        detail.update(level=_per_channel(lev), coverage_val_loro=_per_channel(cov))
+    return noise, np.array([np.quantile(z[:, c], lev[c]) for c in range(z.shape[1])]) / Z90
+
+
+def run_quantile_scale(val_preds: np.ndarray, val_y: np.ndarray, runs: np.ndarray, run_level: float = 0.9):
+    """The earlier rule, for comparison only: the ``run_level`` quantile over runs of each run's 90 % quantile."""
+    _, z = _scores(val_preds, val_y)
     per_run = np.array([np.quantile(z[runs == r], 0.9, axis=0) for r in np.unique(runs)])
-    return noise, np.quantile(per_run, run_level, axis=0) / Z90
+    return np.quantile(per_run, run_level, axis=0) / Z90
 
 
 def coverage(preds: np.ndarray, y: np.ndarray, noise: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -188,19 +239,28 @@ def train_ensemble(cfg, out_dir: str | Path, *, members: int = 5, first_seed: in
     skip = max(m.seq_len for m in models) - 1
     val_p, val_y, val_r = _split_arrays(prepared, models, "val", skip)
     test_p, test_y, _ = _split_arrays(prepared, models, "test", skip)
-    noise, pooled = calibrate(val_p, val_y)
-    noise, scale = calibrate(val_p, val_y, val_r)
+    _, z_val = _scores(val_p, val_y)
+    pooled = np.quantile(z_val, 0.9, axis=0) / Z90
+    run90 = run_quantile_scale(val_p, val_y, val_r) if len(np.unique(val_r)) else np.ones(6)
+    detail: dict = {}
+    noise, scale = calibrate(val_p, val_y, val_r, detail=detail)
     ones = np.ones(6)
     rec: dict = {
         "schema": SCHEMA, "members": member_rec, "channels": list(WRENCH_CHANNELS),
         "noise_var": _per_channel(noise), "scale": _per_channel(scale),
         "interval": "mean +- 1.645 * scale * sqrt(members' variance + noise_var), per channel",
         "calibration": {
-            "level": 0.9, "fitted_on": "val", "method": "run by run: 90 % of the readings in 90 % of the val runs",
+            "level": 0.9, "fitted_on": "val",
+            "method": "cross-conformal by run: pooled val quantile at the smallest level whose leave-one-run-out "
+                      "coverage on val is >= 90 %",
             "val_runs": int(len(np.unique(val_r))), "val_ticks": int(len(val_y)), "test_ticks": int(len(test_y)),
-            "scale_pooled": _per_channel(pooled),
+            "quantile_level": detail.get("level"), "coverage_val_loro": detail.get("coverage_val_loro"),
+            "scale_pooled": _per_channel(pooled), "scale_run_quantile": _per_channel(run90),
             "coverage_val_before": _per_channel(coverage(val_p, val_y, noise, ones)),
             "coverage_val_after": _per_channel(coverage(val_p, val_y, noise, scale)),
+            "comparison_note": "scale_pooled (val 90 % quantile) and scale_run_quantile (90 % of the readings in "
+                               "90 % of the val runs) are fitted on val too; their test coverage is reported, never "
+                               "used to choose",
         },
         "config": cfg.to_dict(), "split": prepared.split.to_dict(),
     }
@@ -209,6 +269,7 @@ def train_ensemble(cfg, out_dir: str | Path, *, members: int = 5, first_seed: in
         rec["calibration"]["coverage_test_before"] = _per_channel(coverage(test_p, test_y, noise, ones))
         rec["calibration"]["coverage_test_after"] = _per_channel(coverage(test_p, test_y, noise, scale))
         rec["calibration"]["coverage_test_pooled_scale"] = _per_channel(coverage(test_p, test_y, noise, pooled))
+        rec["calibration"]["coverage_test_run_quantile_scale"] = _per_channel(coverage(test_p, test_y, noise, run90))
         rec["test_mse"] = {"ensemble_mean": _per_channel(((test_y - mu) ** 2).mean(0)),
                            "members": [_per_channel(((test_y - p) ** 2).mean(0)) for p in test_p]}
         rec["test_mean_variance"] = {"members": _per_channel(test_p.var(0, ddof=1).mean(0)),
