@@ -123,8 +123,6 @@ def record(port, out: str | Path, *, baudrate: int = 921600, duration_s: float |
     when the device vanishes, when no byte arrives for ``stall_s`` seconds (None or 0: wait for
     ever) or when the disk is full.
     """
-    import serial
-
     out = Path(out)
     if out.exists():
         raise ContractError("capture file exists; raw data is never overwritten", path=out,
@@ -132,122 +130,201 @@ def record(port, out: str | Path, *, baudrate: int = 921600, duration_s: float |
     ser = open_port(port, baudrate) if isinstance(port, str) else port
     # the file is created once the port is open (pyserial clears the port's input on open): its
     # appearance means the recording has started
+    fh = _create_capture(out, port, ser)
+    port_name = _port_name(port, ser)
+    stop = stop or threading.Event()
+    capture = _Capture(fh, FrameDecoder(period_us=1e6 / rate_hz if rate_hz else None))
+    stats, decoder = capture.stats, capture.decoder
+    t0 = time.monotonic()
+    fault: tuple[str, BaseException | None] | None = None   # (kind, cause)
+    try:
+        with fh, _StopOnSignal(stop) as sig:
+            try:
+                fault = _receive(ser, port, capture, t0, _Progress(on_progress, progress_every_s, t0),
+                                 stop=lambda now: _stop_reason(now - t0, duration_s, stop, sig),
+                                 stall_s=stall_s, sync_every_s=sync_every_s)
+                if fault is None:
+                    fault = _drain(ser, capture)
+                capture.sync()
+            except _StoreFailed as failed:  # writing or syncing the capture failed: disk full, I/O error
+                fault = ("disk", failed.cause)
+                capture.end_at_last_frame()
+    finally:
+        _close_port(port, ser)
+    elapsed = time.monotonic() - t0
+    _update(stats, decoder, elapsed, decoder.frames / elapsed if elapsed > 0 else 0.0)
+    if fault is not None:
+        stats.stopped_by = fault[0]
+        raise _fault(fault[0], fault[1], stats, out, port_name, elapsed, stall_s, capture.lost_bytes)
+    return stats
+
+
+def _create_capture(out: Path, port, ser):
+    """Create the capture file, unbuffered (every chunk is one write, the file's size what was stored).
+
+    On failure a port that :func:`record` opened is closed, and the error names the file.
+    """
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        fh = open(out, "xb", buffering=0)  # unbuffered: every chunk is one write, the file's size what was stored
+        return open(out, "xb", buffering=0)
     except OSError as exc:
         if isinstance(port, str):
             ser.close()
         raise DataError(f"cannot create the capture: {exc.strerror or exc}", path=out,
                         hint="check the folder, its permissions and free space") from exc
-    port_name = port if isinstance(port, str) else (getattr(ser, "port", None) or getattr(ser, "portstr", None)
-                                                     or "the serial port")
-    stop = stop or threading.Event()
-    decoder = FrameDecoder(period_us=1e6 / rate_hz if rate_hz else None)
-    stats = AcquireStats()
-    t0 = time.monotonic()
-    last_progress = last_sync = last_byte = t0
-    last_frames = 0
-    fault: tuple[str, BaseException | None] | None = None   # (kind, cause)
-    lost_bytes = 0
-    try:
-        with fh, _StopOnSignal(stop) as sig:
-            def take(chunk: bytes) -> None:
-                """Write the whole chunk (a short write continues); count and decode what was stored."""
-                nonlocal lost_bytes
-                view = memoryview(chunk)
-                done = 0
-                try:
-                    while done < len(view):
-                        done += fh.write(view[done:])
-                except OSError as exc:
-                    raise _StoreFailed(exc) from exc
-                finally:
-                    if done:
-                        stats.bytes += done
-                        decoder.feed(view[:done])
-                    lost_bytes = len(view) - done
 
-            def sync() -> None:
-                try:
-                    os.fsync(fh.fileno())
-                except OSError as exc:
-                    raise _StoreFailed(exc) from exc
 
-            def read_port(size: int | None) -> bytes:
-                if size is None:
-                    # what the port holds; when it says 0 or 1 (socket:// always says 1), up to 4 kB
-                    # within the port's timeout (0.1 s), so a network port is not read byte by byte
-                    waiting = ser.in_waiting
-                    size = waiting if waiting > 1 else 4096
-                return ser.read(size)
+def _port_name(port, ser) -> str:
+    """The port's name for messages: the name given, else the open port's own name."""
+    if isinstance(port, str):
+        return port
+    return getattr(ser, "port", None) or getattr(ser, "portstr", None) or "the serial port"
 
+
+def _close_port(port, ser) -> None:
+    """Close a port that :func:`record` opened (a vanished device may fail to close: ignored)."""
+    if isinstance(port, str):
+        try:
+            ser.close()
+        except Exception:  # noqa: BLE001 - a vanished device may fail to close; the capture is what matters
+            pass
+
+
+class _Capture:
+    """The open capture file: stores chunks whole, counts and decodes what was stored."""
+
+    def __init__(self, fh, decoder: FrameDecoder):
+        self.fh = fh
+        self.decoder = decoder
+        self.stats = AcquireStats()
+        self.lost_bytes = 0   # of the last chunk, what could not be written
+
+    def take(self, chunk: bytes) -> None:
+        """Write the whole chunk (a short write continues); count and decode what was stored."""
+        view = memoryview(chunk)
+        done = 0
+        try:
+            while done < len(view):
+                done += self.fh.write(view[done:])
+        except OSError as exc:
+            raise _StoreFailed(exc) from exc
+        finally:
+            if done:
+                self.stats.bytes += done
+                self.decoder.feed(view[:done])
+            self.lost_bytes = len(view) - done
+
+    def sync(self) -> None:
+        """Sync the file to disk (a failure is :class:`_StoreFailed`)."""
+        try:
+            os.fsync(self.fh.fileno())
+        except OSError as exc:
+            raise _StoreFailed(exc) from exc
+
+    def end_at_last_frame(self) -> None:
+        """After a failed write: trim a frame fragment the write cut, then sync (both best effort)."""
+        if self.decoder.pending_bytes:
             try:
-                while True:
-                    now = time.monotonic()
-                    if duration_s is not None and now - t0 >= duration_s:
-                        stats.stopped_by = "duration"
-                        break
-                    if stop.is_set():
-                        stats.stopped_by = sig.signal_name or "stop"
-                        break
-                    try:
-                        chunk = read_port(None)
-                    except (serial.SerialException, OSError) as exc:
-                        fault = ("vanished", exc)
-                        break
-                    now = time.monotonic()
-                    if chunk:
-                        take(chunk)
-                        last_byte = now
-                    elif stall_s and now - last_byte >= stall_s:
-                        gone = isinstance(port, str) and port.startswith("/dev/") and not os.path.exists(port)
-                        fault = ("vanished", None) if gone else ("stalled", None)
-                        break
-                    if now - last_sync >= sync_every_s:
-                        sync()
-                        last_sync = now
-                    if on_progress and now - last_progress >= progress_every_s:
-                        _update(stats, decoder, now - t0, (decoder.frames - last_frames) / (now - last_progress))
-                        last_frames, last_progress = decoder.frames, now
-                        on_progress(stats)
-                if fault is None:
-                    # drain what the port already holds: received bytes are never dropped
-                    while True:
-                        try:
-                            waiting = ser.in_waiting
-                            chunk = read_port(waiting) if waiting else b""
-                        except (serial.SerialException, OSError) as exc:
-                            fault = ("vanished", exc)
-                            break
-                        if not chunk:
-                            break
-                        take(chunk)
-                sync()
-            except _StoreFailed as failed:  # writing or syncing the capture failed: disk full, I/O error
-                fault = ("disk", failed.cause)
-                if decoder.pending_bytes:   # a frame fragment cut by the failed write: end at the last frame
-                    try:
-                        os.ftruncate(fh.fileno(), stats.bytes - decoder.pending_bytes)
-                        stats.bytes -= decoder.pending_bytes
-                    except OSError:
-                        pass
-                try:
-                    os.fsync(fh.fileno())
-                except OSError:
-                    pass
-    finally:
-        if isinstance(port, str):
-            try:
-                ser.close()
-            except Exception:  # noqa: BLE001 - a vanished device may fail to close; the capture is what matters
+                os.ftruncate(self.fh.fileno(), self.stats.bytes - self.decoder.pending_bytes)
+                self.stats.bytes -= self.decoder.pending_bytes
+            except OSError:
                 pass
-    elapsed = time.monotonic() - t0
-    _update(stats, decoder, elapsed, decoder.frames / elapsed if elapsed > 0 else 0.0)
-    if fault is not None:
-        stats.stopped_by = fault[0]
-        raise _fault(fault[0], fault[1], stats, out, port_name, elapsed, stall_s, lost_bytes)
-    return stats
+        try:
+            os.fsync(self.fh.fileno())
+        except OSError:
+            pass
+
+
+class _Progress:
+    """Calls ``on_progress`` with fresh stats every ``every_s`` seconds (the rate over that interval)."""
+
+    def __init__(self, on_progress: Callable[[AcquireStats], None] | None, every_s: float, t0: float):
+        self.on_progress = on_progress
+        self.every_s = every_s
+        self.t0 = self.last = t0
+        self.last_frames = 0
+
+    def tick(self, capture: _Capture, now: float) -> None:
+        """Report if one is due."""
+        if not self.on_progress or now - self.last < self.every_s:
+            return
+        decoder = capture.decoder
+        _update(capture.stats, decoder, now - self.t0, (decoder.frames - self.last_frames) / (now - self.last))
+        self.last_frames, self.last = decoder.frames, now
+        self.on_progress(capture.stats)
+
+
+def _read_port(ser, size: int | None) -> bytes:
+    """Read ``size`` bytes from the port.
+
+    ``size`` None: what the port holds, or when it says 0 or 1 (socket:// always says 1), up to
+    4 kB within the port's timeout (0.1 s), so a network port is not read byte by byte.
+    """
+    if size is None:
+        waiting = ser.in_waiting
+        size = waiting if waiting > 1 else 4096
+    return ser.read(size)
+
+
+def _stop_reason(elapsed: float, duration_s: float | None, stop: threading.Event, sig: _StopOnSignal) -> str:
+    """Why the recording stops now (``"duration"``, the signal's name, ``"stop"``), or ``""``."""
+    if duration_s is not None and elapsed >= duration_s:
+        return "duration"
+    if stop.is_set():
+        return sig.signal_name or "stop"
+    return ""
+
+
+def _silence_fault(port) -> tuple[str, None]:
+    """The fault of a silent stream: ``vanished`` when its ``/dev`` node is gone, else ``stalled``."""
+    gone = isinstance(port, str) and port.startswith("/dev/") and not os.path.exists(port)
+    return ("vanished", None) if gone else ("stalled", None)
+
+
+def _receive(ser, port, capture: _Capture, t0: float, progress: _Progress, *, stop: Callable[[float], str],
+             stall_s: float | None, sync_every_s: float) -> tuple[str, BaseException | None] | None:
+    """Read the port into the capture until ``stop(now)`` gives a reason (stored as ``stopped_by``).
+
+    Syncs every ``sync_every_s`` and reports progress; returns the fault that ended the reading
+    (device vanished, stream stalled for ``stall_s``), or None when it was stopped.
+    """
+    import serial
+
+    last_sync = last_byte = t0
+    while True:
+        reason = stop(time.monotonic())
+        if reason:
+            capture.stats.stopped_by = reason
+            return None
+        try:
+            chunk = _read_port(ser, None)
+        except (serial.SerialException, OSError) as exc:
+            return ("vanished", exc)
+        now = time.monotonic()
+        if chunk:
+            capture.take(chunk)
+            last_byte = now
+        elif stall_s and now - last_byte >= stall_s:
+            return _silence_fault(port)
+        if now - last_sync >= sync_every_s:
+            capture.sync()
+            last_sync = now
+        progress.tick(capture, now)
+
+
+def _drain(ser, capture: _Capture) -> tuple[str, BaseException] | None:
+    """Store what the port already holds (received bytes are never dropped); a vanished device's fault, or None."""
+    import serial
+
+    while True:
+        try:
+            waiting = ser.in_waiting
+            chunk = _read_port(ser, waiting) if waiting else b""
+        except (serial.SerialException, OSError) as exc:
+            return ("vanished", exc)
+        if not chunk:
+            return None
+        capture.take(chunk)
 
 
 def _fault(kind: str, cause: BaseException | None, stats: AcquireStats, out: Path, port_name: str,
