@@ -145,66 +145,108 @@ class MarkerTracker:
         nan = np.array([np.nan, np.nan])
         found: list[np.ndarray | None] = [None, None]
         if self.locked:
-            preds = []
-            for i in range(2):
-                dt = t - self.last_t[i] if np.isfinite(self.last_t[i]) else 0.0
-                preds.append(self.last_px[i] + self.vel_px[i] * min(dt, 0.5))
-            blobs = self._roi_blobs(frame, preds)
-            for i in range(2):
-                dt = max(t - self.last_t[i], 1e-3)
-                gate_m = self.p.max_speed_mps * dt + 0.03
-                cand = sorted(blobs[i], key=lambda b, p=preds[i]: np.hypot(b.u - p[0], b.v - p[1]))
-                for b in cand:
-                    bm = self._to_m((b.u, b.v))
-                    if np.hypot(*(bm - self.last_m[i])) <= gate_m:
-                        found[i] = np.array([b.u, b.v])
-                        break
-            missing = tuple(i for i in range(2) if found[i] is None)
-            if missing and self.p.sat_min_relaxed < self.p.sat_min:
-                lax = self._roi_blobs(frame, [preds[i] for i in missing], which=missing, relaxed=True)
-                for i in missing:
-                    dt = max(t - self.last_t[i], 1e-3)
-                    tight_m = 0.04 + 0.25 * self.p.max_speed_mps * dt
-                    pm = self._to_m(preds[i])
-                    for b in sorted(lax[i], key=lambda b, p=preds[i]: np.hypot(b.u - p[0], b.v - p[1])):
-                        if np.hypot(*(self._to_m((b.u, b.v)) - pm)) <= tight_m:
-                            found[i] = np.array([b.u, b.v])
-                            self.n_relaxed += 1
-                            break
-            if found[0] is not None and found[1] is not None:
-                if not self._spacing_ok(self._to_m(found[0]), self._to_m(found[1])):
-                    # drop the one that strays further from its prediction
-                    d = [np.hypot(*(found[i] - preds[i])) for i in range(2)]
-                    found[int(np.argmax(d))] = None
-            elif found[0] is not None or found[1] is not None:
-                i = 0 if found[0] is not None else 1
-                j = 1 - i
-                if self.last_m[j] is not None and len(self.spacings) >= 3:
-                    s = float(np.hypot(*(self._to_m(found[i]) - self.last_m[j])))
-                    ref = float(np.median(self.spacings))
-                    # the partner is hidden, but the visible one must still sit near its old partner
-                    if abs(s - ref) > self.p.spacing_tolerance * ref + self.p.max_speed_mps * (t - self.last_t[j]):
-                        found[i] = None
-            if found[0] is None and found[1] is None:
-                self.missed += 1
-            else:
-                self.missed = 0
-            if self.missed > 0 and t - np.nanmax(self.last_t) > self.p.search_every_s:
-                self.locked = False
+            found = self._follow(frame, t)
         if not self.locked and t >= self.next_search_t:
-            self.next_search_t = t + self.p.search_every_s
-            pair = self.acquire(frame)
-            if pair is not None:
-                hm, tm = self._to_m(pair[0]), self._to_m(pair[1])
-                ok = True
-                for i, m in enumerate((hm, tm)):
-                    if self.last_m[i] is not None:
-                        dt = max(t - self.last_t[i], 1e-3)
-                        ok &= bool(np.hypot(*(m - self.last_m[i])) <= self.p.max_speed_mps * dt + 0.05)
-                if ok:
-                    found = [pair[0], pair[1]]
-                    self.locked = True
-                    self.missed = 0
+            found = self._reacquire(frame, t, found)
+        self._remember(found, t)
+        return (found[0] if found[0] is not None else nan.copy(),
+                found[1] if found[1] is not None else nan.copy())
+
+    def _follow(self, frame: np.ndarray, t: float) -> list[np.ndarray | None]:
+        """While locked: find each marker near its prediction; count misses and unlock after ``search_every_s``."""
+        preds = self._predict(t)
+        found = self._gated(self._roi_blobs(frame, preds), preds, t)
+        missing = tuple(i for i in range(2) if found[i] is None)
+        if missing and self.p.sat_min_relaxed < self.p.sat_min:
+            self._relaxed_search(frame, preds, missing, found, t)
+        self._check_spacing(found, preds, t)
+        if found[0] is None and found[1] is None:
+            self.missed += 1
+        else:
+            self.missed = 0
+        if self.missed > 0 and t - np.nanmax(self.last_t) > self.p.search_every_s:
+            self.locked = False
+        return found
+
+    def _predict(self, t: float) -> list[np.ndarray]:
+        """Each marker's pixel position at ``t`` from its last position and velocity (at most 0.5 s ahead)."""
+        preds = []
+        for i in range(2):
+            dt = t - self.last_t[i] if np.isfinite(self.last_t[i]) else 0.0
+            preds.append(self.last_px[i] + self.vel_px[i] * min(dt, 0.5))
+        return preds
+
+    @staticmethod
+    def _by_distance(blobs: list[Blob], pred: np.ndarray) -> list[Blob]:
+        return sorted(blobs, key=lambda b: np.hypot(b.u - pred[0], b.v - pred[1]))
+
+    def _gated(self, blobs: dict[int, list[Blob]], preds: list[np.ndarray], t: float) -> list[np.ndarray | None]:
+        """For each marker the blob nearest its prediction that is within the speed gate of its last position."""
+        found: list[np.ndarray | None] = [None, None]
+        for i in range(2):
+            dt = max(t - self.last_t[i], 1e-3)
+            gate_m = self.p.max_speed_mps * dt + 0.03
+            for b in self._by_distance(blobs[i], preds[i]):
+                bm = self._to_m((b.u, b.v))
+                if np.hypot(*(bm - self.last_m[i])) <= gate_m:
+                    found[i] = np.array([b.u, b.v])
+                    break
+        return found
+
+    def _relaxed_search(self, frame: np.ndarray, preds: list[np.ndarray], missing: tuple[int, ...],
+                        found: list[np.ndarray | None], t: float) -> None:
+        """Look for the missing markers with the laxer colour gate, accepting only blobs close to the prediction."""
+        lax = self._roi_blobs(frame, [preds[i] for i in missing], which=missing, relaxed=True)
+        for i in missing:
+            dt = max(t - self.last_t[i], 1e-3)
+            tight_m = 0.04 + 0.25 * self.p.max_speed_mps * dt
+            pm = self._to_m(preds[i])
+            for b in self._by_distance(lax[i], preds[i]):
+                if np.hypot(*(self._to_m((b.u, b.v)) - pm)) <= tight_m:
+                    found[i] = np.array([b.u, b.v])
+                    self.n_relaxed += 1
+                    break
+
+    def _check_spacing(self, found: list[np.ndarray | None], preds: list[np.ndarray], t: float) -> None:
+        """Drop a found marker whose head-tail spacing is implausible (in place)."""
+        if found[0] is not None and found[1] is not None:
+            if not self._spacing_ok(self._to_m(found[0]), self._to_m(found[1])):
+                # drop the one that strays further from its prediction
+                d = [np.hypot(*(found[i] - preds[i])) for i in range(2)]
+                found[int(np.argmax(d))] = None
+        elif found[0] is not None or found[1] is not None:
+            i = 0 if found[0] is not None else 1
+            j = 1 - i
+            if self.last_m[j] is not None and len(self.spacings) >= 3:
+                s = float(np.hypot(*(self._to_m(found[i]) - self.last_m[j])))
+                ref = float(np.median(self.spacings))
+                # the partner is hidden, but the visible one must still sit near its old partner
+                if abs(s - ref) > self.p.spacing_tolerance * ref + self.p.max_speed_mps * (t - self.last_t[j]):
+                    found[i] = None
+
+    def _reacquire(self, frame: np.ndarray, t: float, found: list[np.ndarray | None]) -> list[np.ndarray | None]:
+        """Search the whole frame (every ``search_every_s``); lock onto a pair within the speed gate.
+
+        Returns the pair when locked, else ``found`` unchanged.
+        """
+        self.next_search_t = t + self.p.search_every_s
+        pair = self.acquire(frame)
+        if pair is None:
+            return found
+        hm, tm = self._to_m(pair[0]), self._to_m(pair[1])
+        ok = True
+        for i, m in enumerate((hm, tm)):
+            if self.last_m[i] is not None:
+                dt = max(t - self.last_t[i], 1e-3)
+                ok &= bool(np.hypot(*(m - self.last_m[i])) <= self.p.max_speed_mps * dt + 0.05)
+        if not ok:
+            return found
+        self.locked = True
+        self.missed = 0
+        return [pair[0], pair[1]]
+
+    def _remember(self, found: list[np.ndarray | None], t: float) -> None:
+        """Update each found marker's last position and smoothed velocity, and the spacing history."""
         for i in range(2):
             if found[i] is not None:
                 if self.last_px[i] is not None and np.isfinite(self.last_t[i]) and t > self.last_t[i]:
@@ -215,5 +257,3 @@ class MarkerTracker:
                 self.last_t[i] = t
         if found[0] is not None and found[1] is not None:
             self.spacings.append(float(np.hypot(*(self.last_m[0] - self.last_m[1]))))
-        return (found[0] if found[0] is not None else nan.copy(),
-                found[1] if found[1] is not None else nan.copy())
