@@ -96,6 +96,14 @@ def manifest_faults(campaign, limits: Limits = DEFAULT_LIMITS) -> list[ContractE
         errors.append(ContractError(fault, path=path, run=run, where=where or f"field {key}",
                                     hint=_HINT.format(key=key)))
 
+    _rig_faults(campaign, limits, add)
+    for run in campaign.runs:
+        _run_faults(run, limits, add)
+    return errors
+
+
+def _rig_faults(campaign, limits: Limits, add) -> None:
+    """The ``[loadcell]`` and ``[motion]`` tables' implausible rates and full scales, through ``add``."""
     lc = campaign.loadcell
     if math.isfinite(lc.rate_hz) and lc.rate_hz > limits.rate_hz_max:
         add(f"rate_hz = {lc.rate_hz:g} is implausible (at most {limits.rate_hz_max:g} Hz)", "rate_hz_max",
@@ -111,31 +119,33 @@ def manifest_faults(campaign, limits: Limits = DEFAULT_LIMITS) -> list[ContractE
             and campaign.motion.rate_hz > limits.rate_hz_max:
         add(f"rate_hz = {campaign.motion.rate_hz:g} is implausible (at most {limits.rate_hz_max:g} Hz)",
             "rate_hz_max", where="[motion] rate_hz")
-    for run in campaign.runs:
-        v = run.flow_speed_mps
-        if math.isfinite(v) and v > limits.flow_speed_mps_max:
-            add(f"flow_speed_mps = {v:g} is implausible (the rig runs 0 to {limits.flow_speed_mps_max:g} m/s)",
-                "flow_speed_mps_max", run=run.id, where="field flow_speed_mps")
-        p = run.params
-        for key in ("theta_h_min_deg", "theta_h_max_deg", "theta_k_min_deg", "theta_k_max_deg"):
-            if key in p and abs(p[key]) > limits.angle_deg_max:
-                add(f"{key} = {p[key]:g} is implausible (|angle| at most {limits.angle_deg_max:g} deg)",
-                    "angle_deg_max", run=run.id, where=f"field {key}")
-        for key in ("phi_rad", "alpha_rad"):
-            if key in p and abs(p[key]) > limits.phase_rad_max:
-                add(f"{key} = {p[key]:g} is implausible (|phase| at most {limits.phase_rad_max:.4g} rad)",
-                    "phase_rad_max", run=run.id, where=f"field {key}")
-        f = p.get("frequency_hz")
-        if f is not None and f > limits.frequency_hz_max:
-            add(f"frequency_hz = {f:g} is implausible (the leg runs at most {limits.frequency_hz_max:g} Hz)",
-                "frequency_hz_max", run=run.id, where="field frequency_hz")
-        if run.cycles is not None:
-            if run.cycles > limits.cycles_max:
-                add(f"cycles = {run.cycles} is implausible (at most {limits.cycles_max})", "cycles_max",
-                    run=run.id, where="field cycles")
-            elif f is not None and 0 < f <= limits.frequency_hz_max \
-                    and run.cycles / f > limits.run_duration_s_max:
-                add(f"cycles / frequency_hz = {run.cycles / f:g} s is implausible for one run "
-                    f"(at most {limits.run_duration_s_max:g} s)", "run_duration_s_max", run=run.id,
-                    where="field cycles")
-    return errors
+
+
+def _run_faults(run, limits: Limits, add) -> None:
+    """One run's implausible flow speed, angles, phases, frequency and length, through ``add``."""
+    v = run.flow_speed_mps
+    if math.isfinite(v) and v > limits.flow_speed_mps_max:
+        add(f"flow_speed_mps = {v:g} is implausible (the rig runs 0 to {limits.flow_speed_mps_max:g} m/s)",
+            "flow_speed_mps_max", run=run.id, where="field flow_speed_mps")
+    p = run.params
+    for key in ("theta_h_min_deg", "theta_h_max_deg", "theta_k_min_deg", "theta_k_max_deg"):
+        if key in p and abs(p[key]) > limits.angle_deg_max:
+            add(f"{key} = {p[key]:g} is implausible (|angle| at most {limits.angle_deg_max:g} deg)",
+                "angle_deg_max", run=run.id, where=f"field {key}")
+    for key in ("phi_rad", "alpha_rad"):
+        if key in p and abs(p[key]) > limits.phase_rad_max:
+            add(f"{key} = {p[key]:g} is implausible (|phase| at most {limits.phase_rad_max:.4g} rad)",
+                "phase_rad_max", run=run.id, where=f"field {key}")
+    f = p.get("frequency_hz")
+    if f is not None and f > limits.frequency_hz_max:
+        add(f"frequency_hz = {f:g} is implausible (the leg runs at most {limits.frequency_hz_max:g} Hz)",
+            "frequency_hz_max", run=run.id, where="field frequency_hz")
+    if run.cycles is not None:
+        if run.cycles > limits.cycles_max:
+            add(f"cycles = {run.cycles} is implausible (at most {limits.cycles_max})", "cycles_max",
+                run=run.id, where="field cycles")
+        elif f is not None and 0 < f <= limits.frequency_hz_max \
+                and run.cycles / f > limits.run_duration_s_max:
+            add(f"cycles / frequency_hz = {run.cycles / f:g} s is implausible for one run "
+                f"(at most {limits.run_duration_s_max:g} s)", "run_duration_s_max", run=run.id,
+                where="field cycles")
