@@ -197,7 +197,8 @@ def plan_markdown(record: dict, out_name: str) -> str:
              "localised in state space); each pick maximises the variance it removes per second of tunnel time.", "",
              f"Region: {record['region']['legs']} legs of the retained gaits ({', '.join(record['region']['gait_files'])}), "
              f"{record['region']['points']} points; leg flow {record['region']['flow_speed_mps'][0]:.3f} to "
-             f"{record['region']['flow_speed_mps'][1]:.3f} m/s.", "",
+             f"{record['region']['flow_speed_mps'][1]:.3f} m/s; swum with "
+             f"{'; '.join(record['region'].get('leg_models') or ['EF legs'])}.", "",
              f"Region-weighted model variance (noise units, all channels): {record['total_before']:.3g} now, "
              f"{record['total_after']:.3g} expected after this campaign "
              f"({100 * (1 - record['total_after'] / max(record['total_before'], 1e-30)):.0f} % less).", "",
