@@ -304,6 +304,24 @@ def read_drag_json(path: str | Path, below_range: str = "drop_intercept",
     return laws[0], laws[1]
 
 
+def _drag_laws(drag: BodyDragSettings, drag_json: str | Path | None,
+               path: str | Path | None) -> tuple[dict[str, DragLaw], str]:
+    """The forward and lateral drag laws and where they come from.
+
+    From ``drag_json`` when given (source: that file), else the section's coefficients (source
+    ``"paper"`` when both are the paper's, else the parameter file).
+    """
+    laws = {heading: DragLaw(entry.coefficients or default, entry.speed_range_mps, drag.below_range)
+            for heading, entry, default in (("forward", drag.forward, PAPER_FORWARD_DRAG),
+                                            ("lateral", drag.lateral, PAPER_LATERAL_DRAG))}
+    paper = laws["forward"].coefficients == PAPER_FORWARD_DRAG and laws["lateral"].coefficients == PAPER_LATERAL_DRAG
+    source = "paper" if paper else str(path or "robot parameters")
+    if drag_json:
+        laws["forward"], laws["lateral"] = read_drag_json(drag_json, drag.below_range)
+        source = str(drag_json)
+    return laws, source
+
+
 def robot_from_dict(doc: Mapping[str, Any], *, drag_json: str | Path | None = None,
                     path: str | Path | None = None) -> RobotSettings:
     """Build :class:`RobotSettings` from the parsed ``pipelines/robot.yaml`` (sections robot, legs, body_drag).
@@ -321,15 +339,7 @@ def robot_from_dict(doc: Mapping[str, Any], *, drag_json: str | Path | None = No
     body = build(RobotBodySettings, doc.get("robot"), key="robot", path=path)
     legs = build(LegsSettings, doc.get("legs"), key="legs", path=path)
     drag = build(BodyDragSettings, doc.get("body_drag"), key="body_drag", path=path)
-    laws = {heading: DragLaw(entry.coefficients or default, entry.speed_range_mps, drag.below_range)
-            for heading, entry, default in (("forward", drag.forward, PAPER_FORWARD_DRAG),
-                                            ("lateral", drag.lateral, PAPER_LATERAL_DRAG))}
-    paper = laws["forward"].coefficients == PAPER_FORWARD_DRAG and laws["lateral"].coefficients == PAPER_LATERAL_DRAG
-    source = "paper" if paper else str(path or "robot parameters")
-    drag_json = drag_json or drag.drag_json
-    if drag_json:
-        laws["forward"], laws["lateral"] = read_drag_json(drag_json, drag.below_range)
-        source = str(drag_json)
+    laws, source = _drag_laws(drag, drag_json or drag.drag_json, path)
     try:
         given = {**dataclasses.asdict(body), "body_length_m": drag.body_length_m, "strip_stations": drag.strip_stations,
                  "extra_yaw_damping_nms": drag.extra_yaw_damping_nms}
