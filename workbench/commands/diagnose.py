@@ -71,6 +71,9 @@ def register(sub) -> None:
                    "base, so a yaw drift can be named (without one it is only reported)")
     p.add_argument("--metrics", metavar="JSON",
                    help="with --trials: also write the models' RMS errors here (flat JSON for `dvc metrics`)")
+    p.add_argument("--tunnel-area", type=float, metavar="M2",
+                   help="the test section's cross-section (m^2) when the manifest has no [tunnel] test_section_area_m2: "
+                   "tunnel_blockage then takes Maskell's prior (docs/diagnose.md)")
     p.add_argument("--effects", metavar="LIST", help="comma-separated candidate effects (default: the whole library)")
     p.add_argument("--max-runs", type=int, metavar="N", help="analyse at most N runs (whole parameter sets)")
     p.add_argument("--skip-bad-runs", action="store_true", help="ingest the good runs of a campaign with bad ones")
@@ -121,6 +124,28 @@ def _frame(args, path: str | None = None):
                              skip_bad_runs=args.skip_bad_runs)
     rp = result.params
     return result.frame, (rp.lowpass_cutoff_hz, rp.lowpass_order), str(folder)
+
+
+def _with_tunnel_area(settings, args):
+    """``tunnel_blockage``'s cross-section: the manifest's ``[tunnel]`` table, else ``--tunnel-area``, else the params file."""
+    import dataclasses
+
+    from workbench.errors import ParamsError
+
+    area = None
+    if args.campaign:
+        from workbench.contract.campaign import load_campaign
+
+        area = load_campaign(args.campaign).test_section_area_m2
+    if area is None:
+        area = args.tunnel_area
+    if area is None:
+        return settings
+    if not area > 0:
+        raise ParamsError(f"--tunnel-area must be a positive cross-section in m^2, got {area}")
+    opts = dict(settings.library.options or {})
+    opts["tunnel_blockage"] = {**(opts.get("tunnel_blockage") or {}), "test_section_area_m2": float(area)}
+    return dataclasses.replace(settings, library=dataclasses.replace(settings.library, options=opts))
 
 
 def _virtual_truth(args, frame) -> dict | None:
@@ -193,6 +218,7 @@ def run(args) -> int:
     if args.max_runs is not None:
         settings = dataclasses.replace(settings, data=dataclasses.replace(settings.data, max_runs=args.max_runs))
     frame, (cutoff, order), source = _frame(args)
+    settings = _with_tunnel_area(settings, args)
     lowpass = None
     if settings.match_lowpass:
         lowpass = Lowpass(float(settings.lowpass_cutoff_hz or cutoff or 6.0), int(settings.lowpass_order or order or 4))

@@ -85,6 +85,9 @@ class Campaign:
     loadcell: LoadCellSpec
     motion: MotionSpec | None
     runs: tuple[RunSpec, ...]
+    #: project extension (not contract v1): ``[tunnel] test_section_area_m2``, the test section's
+    #: cross-section (m^2), optional; ``diagnose`` gives ``tunnel_blockage`` Maskell's prior from it
+    test_section_area_m2: float | None = None
 
     @property
     def manifest(self) -> Path:
@@ -134,6 +137,17 @@ def _resolve_inside(root: Path, rel: Any, col: _Collector, run: str, key: str) -
         col.add(f"'{key}' = {rel!r} escapes the campaign folder", run=run, where=f"field {key}")
         return None
     return root / p
+
+
+def _parse_tunnel(t: Any, col: _Collector) -> float | None:
+    """The optional ``[tunnel]`` table (a project extension): ``test_section_area_m2`` or nothing."""
+    if t is None:
+        return None
+    area = _number(t.get("test_section_area_m2")) if isinstance(t, dict) else None
+    if area is None or area <= 0:
+        col.add("test_section_area_m2 must be a positive number (m^2)", where="[tunnel] test_section_area_m2")
+        return None
+    return area
 
 
 def _parse_loadcell(t: Any, col: _Collector, needs_calibration: bool) -> LoadCellSpec:
@@ -300,7 +314,7 @@ def check_manifest(root: str | Path, limits: Limits | None = DEFAULT_LIMITS
         runs.append(r)
     camp = Campaign(root=root, id=cid, facility=facility, date=date,
                     description=str(doc.get("description", "")), loadcell=loadcell,
-                    motion=motion, runs=tuple(runs))
+                    motion=motion, runs=tuple(runs), test_section_area_m2=_parse_tunnel(doc.get("tunnel"), col))
     if limits is not None:
         col.errors.extend(manifest_faults(camp, limits))
     return camp, col.errors

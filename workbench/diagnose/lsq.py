@@ -30,6 +30,8 @@ class Grams:
     order: np.ndarray             # (nb,) block number within the run
     heldout: np.ndarray           # (nb,) bool
     local_names: list[str]
+    #: Gaussian priors (mean, sd) of shared columns by name (``Problem.grams`` fills it from the effects)
+    prior: dict | None = None
 
     @property
     def n_local(self) -> int:
@@ -51,7 +53,7 @@ class Grams:
             gg.append(self.G[c][:, idx][:, :, idx])
             bb.append(self.b[c][:, idx])
         return Grams(list(names), cc, gg, bb, self.yy, self.n, self.run, self.order, self.heldout,
-                     self.local_names)
+                     self.local_names, {k: v for k, v in (self.prior or {}).items() if k in pos and k in names} or None)
 
 
 def accumulate(design, rs, blocks, shared_names: list[str] | None = None) -> Grams:
@@ -102,7 +104,7 @@ def concat(parts: list[Grams]) -> Grams:
                  [np.concatenate([p.b[c] for p in parts]) for c in range(6)],
                  np.concatenate([p.yy for p in parts]), np.concatenate([p.n for p in parts]),
                  np.concatenate([p.run for p in parts]), np.concatenate([p.order for p in parts]),
-                 np.concatenate([p.heldout for p in parts]), p0.local_names)
+                 np.concatenate([p.heldout for p in parts]), p0.local_names, p0.prior)
 
 
 def weighted(gr: Grams, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -204,17 +206,30 @@ def fit(gr: Grams, w: np.ndarray, hac_lags: int = 2, fixed: dict[str, float] | N
             r_s += a
     theta = theta_fixed.copy()
     theta[fi] = _solve(a_s, r_s)
-    local, local_info = {}, {}
-    if m:
-        for i in range(nr):
-            C = g_run[i][k:, k:]
-            rhs = b_run[i][k:] - g_run[i][k:, fi] @ theta[fi]
-            local[int(runs[i])] = cinv[i] @ rhs
-            local_info[int(runs[i])] = np.diag(C).copy()
-    th_block = np.zeros((len(gr.run), k + m))
-    th_block[:, :k] = theta
-    if m:
-        th_block[:, k:] = np.array([local[int(r)] for r in gr.run])
+
+    def locals_for(theta):
+        local, local_info = {}, {}
+        if m:
+            for i in range(nr):
+                C = g_run[i][k:, k:]
+                rhs = b_run[i][k:] - g_run[i][k:, fi] @ theta[fi]
+                local[int(runs[i])] = cinv[i] @ rhs
+                local_info[int(runs[i])] = np.diag(C).copy()
+        th_block = np.zeros((len(gr.run), k + m))
+        th_block[:, :k] = theta
+        if m:
+            th_block[:, k:] = np.array([local[int(r)] for r in gr.run])
+        return local, local_info, th_block
+
+    local, local_info, th_block = locals_for(theta)
+    prior = {n: v for n, v in (gr.prior or {}).items() if n in gr.names and n not in fixed}
+    cov_prior = None
+    if prior:
+        # a Gaussian prior on some coefficients, combined with the data's robust (sandwich)
+        # likelihood: posterior precision = C^-1 + D, mean = (C^-1 theta + D mu) / that
+        cov_data = _robust_cov(gr, fi, a_s, bw, gw, th_block, train, hac_lags)
+        theta, cov_prior = _posterior(theta, fi, cov_data, prior, list(gr.names))
+        local, local_info, th_block = locals_for(theta)
     sse = yyw - 2 * np.einsum("ni,ni->n", th_block, bw) + np.einsum("ni,nij,nj->n", th_block, gw, th_block)
     sse_c = np.zeros_like(gr.yy)
     for c in range(6):
@@ -225,7 +240,14 @@ def fit(gr: Grams, w: np.ndarray, hac_lags: int = 2, fixed: dict[str, float] | N
         tc = th_block[:, idx]
         sse_c[:, c] = (gr.yy[:, c] - 2 * np.einsum("ni,ni->n", tc, gr.b[c])
                        + np.einsum("ni,nij,nj->n", tc, gr.G[c], tc))
-    # sandwich covariance over training blocks (scores of the free shared coefficients)
+    cov_f = cov_prior if cov_prior is not None else _robust_cov(gr, fi, a_s, bw, gw, th_block, train, hac_lags)
+    cov = np.full((k, k), 0.0)
+    cov[np.ix_(fi, fi)] = cov_f
+    return Fit(list(gr.names), theta, local, local_info, cov, np.maximum(sse, 0.0), np.maximum(sse_c, 0.0))
+
+
+def _robust_cov(gr: Grams, fi, a_s, bw, gw, th_block, train, hac_lags: int) -> np.ndarray:
+    """Sandwich covariance of the free shared coefficients over the training blocks."""
     scores = bw[:, fi] - np.einsum("nij,nj->ni", gw[:, fi, :], th_block)
     n_runs = len(np.unique(gr.run[train]))
     if n_runs >= len(fi) + 5:
@@ -235,12 +257,27 @@ def fit(gr: Grams, w: np.ndarray, hac_lags: int = 2, fixed: dict[str, float] | N
         u, inv = np.unique(rs, return_inverse=True)
         per_run = np.zeros((len(u), len(fi)))
         np.add.at(per_run, inv, scores[train])
-        cov_f = _hac_cov(a_s, per_run, u, np.zeros(len(u), int), 0)
-    else:
-        cov_f = _hac_cov(a_s, scores[train], gr.run[train], gr.order[train], hac_lags)
-    cov = np.full((k, k), 0.0)
-    cov[np.ix_(fi, fi)] = cov_f
-    return Fit(list(gr.names), theta, local, local_info, cov, np.maximum(sse, 0.0), np.maximum(sse_c, 0.0))
+        return _hac_cov(a_s, per_run, u, np.zeros(len(u), int), 0)
+    return _hac_cov(a_s, scores[train], gr.run[train], gr.order[train], hac_lags)
+
+
+def _posterior(theta: np.ndarray, fi: np.ndarray, cov_data: np.ndarray, prior: dict, names: list[str]):
+    """Gaussian prior (mean, sd) on some free coefficients and the data's estimate ``theta`` with covariance ``cov_data``.
+
+    Returns the posterior mean (all coefficients: correlated ones move too) and covariance of the free ones.
+    """
+    pos = {names[j]: i for i, j in enumerate(fi)}
+    prec = _inv(cov_data)
+    d = np.zeros(len(fi))
+    mu = np.zeros(len(fi))
+    for n, (mean, sd) in prior.items():
+        if n in pos and sd > 0:
+            d[pos[n]] = 1.0 / sd ** 2
+            mu[pos[n]] = mean
+    post_cov = _inv(prec + np.diag(d))
+    out = theta.copy()
+    out[fi] = post_cov @ (prec @ theta[fi] + d * mu)
+    return out, post_cov
 
 
 def _hac_cov(bread_inv: np.ndarray, scores: np.ndarray, run: np.ndarray, order: np.ndarray, lags: int) -> np.ndarray:

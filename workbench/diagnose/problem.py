@@ -134,7 +134,11 @@ class Problem:
         for rs, blocks in self.sets(sets):
             d = self.design(rs, config, coefs, names, surrogate=surrogate)
             parts.append(lsq.accumulate(d, rs, blocks, names if names is not None else d.names))
-        return lsq.concat(parts)
+        gr = lsq.concat(parts)
+        # Gaussian priors an effect puts on its linear parameters (a blockage's Maskell factor)
+        prior = {f"{a.name}.{k}": v for a in config.actives for k, v in (getattr(a.effect, "priors", dict)() or {}).items()}
+        gr.prior = {k: v for k, v in prior.items() if k in gr.names} or None
+        return gr
 
     def fit(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
             sets: str = "all", fixed: dict | None = None, surrogate: bool | None = None) -> lsq.Fit:

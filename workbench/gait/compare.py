@@ -69,11 +69,17 @@ def seq_len_tables(models: Sequence[tuple[str, str]], *, leg_metrics: Mapping[st
         raise ValueError("seq_len_tables needs at least one (key, title) model")
     keys = [k for k, _ in models]
     titles = dict(models)
-    tables: list[Table] = []
     missing: list[str] = []
+    tables = [_accuracy_table(keys, titles, leg_metrics or {}, channels, baseline, missing),
+              _optimiser_table(keys, titles, gait_metrics or {}, cap_s, missing),
+              _pool_table(keys, titles, pool_summary, pool_labels, cap_s, missing)]
+    notes = ["Not available: " + "; ".join(dict.fromkeys(missing)) + "."] if missing else []
+    return tables, notes
 
-    # -- held-out accuracy -------------------------------------------------------------------
-    leg = leg_metrics or {}
+
+def _accuracy_table(keys: list[str], titles: Mapping[str, str], leg: Mapping[str, Any], channels: Sequence[str],
+                    baseline: str, missing: list[str]) -> Table:
+    """Held-out MSE and R^2 per channel (the baseline's MSE first; the ratio of the first two models)."""
     have_base = baseline in leg and isinstance(leg[baseline], Mapping)
     head = ["channel"] + ([f"{baseline.upper()} MSE"] if have_base else [])
     for k in keys:
@@ -93,18 +99,20 @@ def seq_len_tables(models: Sequence[tuple[str, str]], *, leg_metrics: Mapping[st
             b = _num(((leg.get(keys[1]) or {}).get("mse") or {}).get(ch))
             row.append("-" if a in (None, 0.0) or b is None else f"{b / a:.2f}")
         rows.append(row)
-    tables.append(("Held-out accuracy (test parameter sets; MSE and R^2 per channel on the same runs and ticks)",
-                   head, rows))
     absent = [k for k in keys if k not in leg]
     if absent:
         missing.append(f"no held-out metrics for {', '.join(absent)}")
+    return ("Held-out accuracy (test parameter sets; MSE and R^2 per channel on the same runs and ticks)",
+            head, rows)
 
-    # -- the optimiser's prediction -----------------------------------------------------------
+
+def _optimiser_table(keys: list[str], titles: Mapping[str, str], gm: Mapping[str, Mapping[str, Any]],
+                     cap_s: float, missing: list[str]) -> Table:
+    """Each model's predicted best f3 and best S per task (an f3 at or above the cap: not finished)."""
     head = ["task"]
     for k in keys:
         head += [f"{titles[k]} best f3 (s)", f"{titles[k]} best S"]
     rows = []
-    gm = gait_metrics or {}
     for task in TASKS:
         row = [task]
         for k in keys:
@@ -117,17 +125,19 @@ def seq_len_tables(models: Sequence[tuple[str, str]], *, leg_metrics: Mapping[st
             f3_txt = "-" if f3 is None else (f"not finished ({f3:.1f})" if f3 >= cap_s else f"{f3:.1f}")
             row += [f3_txt, _g(m.get("best_score"), ".2f")]
         rows.append(row)
-    tables.append(("Optimiser (NSGA-II): each model's own prediction for its best gait; f3 = time to finish the "
-                   f"trials' task (s; {cap_s:g} s or more = not finished); S = w1 f1 + w2 f2 + w3 f3, lower is "
-                   "better", head, rows))
+    return ("Optimiser (NSGA-II): each model's own prediction for its best gait; f3 = time to finish the "
+            f"trials' task (s; {cap_s:g} s or more = not finished); S = w1 f1 + w2 f2 + w3 f3, lower is "
+            "better", head, rows)
 
-    # -- the virtual pool ---------------------------------------------------------------------
+
+def _pool_table(keys: list[str], titles: Mapping[str, str], pool_summary: Mapping[str, Any] | None,
+                pool_labels: Mapping[str, str] | None, cap_s: float, missing: list[str]) -> Table:
+    """The virtual pool's finished count, best and median time and median score per task and model."""
     rows = []
     by_model = (pool_summary or {}).get("by_model") or {}
     if pool_summary is None:
         missing.append("no pool summary")
     for task in TASKS:
-        name, unit = SECOND_SCORE[task]
         for k in keys:
             label = _pool_label(k, pool_labels)
             st = (by_model.get(label) or {}).get(task)
@@ -136,19 +146,23 @@ def seq_len_tables(models: Sequence[tuple[str, str]], *, leg_metrics: Mapping[st
                 if pool_summary is not None:
                     missing.append(f"no pool trials of {label} ({task})")
                 continue
-            n, done = int(st.get("n", 0)), int(st.get("completed", 0))
-            times = st.get("time_s") or {}
-            best = _num(times.get("min"))
-            best_txt = "none finished" if done == 0 or best is None or best >= cap_s else f"{best:.1f}"
-            med = _num(times.get("median"))
-            med_txt = "-" if med is None else (f">= {cap_s:g} (unfinished)" if med >= cap_s else f"{med:.1f}")
-            second = (st.get(name) or {}).get("median")
-            rows.append([task, titles[k], f"{done}/{n}", best_txt, med_txt, f"{unit} {_g(second)}"])
-    tables.append(("Virtual pool: the retained gaits swum on the virtual truth and scored from video (best time "
-                   f"among finished trials; unfinished trials within {cap_s:g} s are counted, not timed)",
-                   ["task", "model", "finished", "best time (s)", "median time (s)", "median score"], rows))
-    notes = ["Not available: " + "; ".join(dict.fromkeys(missing)) + "."] if missing else []
-    return tables, notes
+            rows.append([task, titles[k], *_pool_cells(task, st, cap_s)])
+    return ("Virtual pool: the retained gaits swum on the virtual truth and scored from video (best time "
+            f"among finished trials; unfinished trials within {cap_s:g} s are counted, not timed)",
+            ["task", "model", "finished", "best time (s)", "median time (s)", "median score"], rows)
+
+
+def _pool_cells(task: str, st: Mapping[str, Any], cap_s: float) -> list[str]:
+    """Finished/n, best time, median time and median second score of one model's trials of one task."""
+    name, unit = SECOND_SCORE[task]
+    n, done = int(st.get("n", 0)), int(st.get("completed", 0))
+    times = st.get("time_s") or {}
+    best = _num(times.get("min"))
+    best_txt = "none finished" if done == 0 or best is None or best >= cap_s else f"{best:.1f}"
+    med = _num(times.get("median"))
+    med_txt = "-" if med is None else (f">= {cap_s:g} (unfinished)" if med >= cap_s else f"{med:.1f}")
+    second = (st.get(name) or {}).get("median")
+    return [f"{done}/{n}", best_txt, med_txt, f"{unit} {_g(second)}"]
 
 
 def seq_len_comparison(models: Sequence[tuple[str, str]], **kwargs) -> str:
