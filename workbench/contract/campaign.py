@@ -195,34 +195,49 @@ def _parse_run(i: int, t: Any, root: Path, facility: str, col: _Collector) -> Ru
     if speed is None or speed < 0:
         col.add("flow_speed_mps must be a non-negative number", run=rid, where="field flow_speed_mps")
         speed = float("nan")
+    files = {key: _resolve_inside(root, t[key], col, rid, key) if key in t else None for key in _RUN_FILE_KEYS}
     params: dict[str, float] = {}
     heading = None
-    files: dict[str, Path | None] = {k: None for k in _RUN_FILE_KEYS}
-    for key in _RUN_FILE_KEYS:
-        if key in t:
-            files[key] = _resolve_inside(root, t[key], col, rid, key)
-    has_mcap = "mcap" in t
     if facility == "water_tunnel":
-        for key in TUNNEL_MOTION_PARAMS:
-            v = t.get(key, TUNNEL_OPTIONAL_DEFAULTS.get(key))
-            num = _number(v)
-            if num is None:
-                col.add(f"'{key}' is missing or not a number", run=rid, where=f"field {key}")
-            else:
-                params[key] = num
-        if "frequency_hz" in params and params["frequency_hz"] <= 0:
-            col.add("frequency_hz must be positive", run=rid, where="field frequency_hz")
+        params = _tunnel_run_params(t, rid, col)
         needed = ("loadcell", "motion")
-        if "carriage" in t or "heading" in t:
-            col.add("a water-tunnel run has no 'carriage' or 'heading'", run=rid)
     else:
-        heading = t.get("heading")
-        if heading not in HEADINGS:
-            col.add(f"heading must be one of {HEADINGS}, got {heading!r}", run=rid, where="field heading")
+        heading = _towing_run_heading(t, rid, col)
         needed = ("loadcell", "carriage")
-        if "motion" in t:
-            col.add("a towing-tank run has no 'motion' file", run=rid)
-    if has_mcap:
+    _check_run_files(t, rid, needed, col)
+    return RunSpec(id=rid, flow_speed_mps=speed, params=MappingProxyType(params), heading=heading,
+                   cycles=_parse_cycles(t.get("cycles"), rid, col), **files)
+
+
+def _tunnel_run_params(t: dict, rid: str, col: _Collector) -> dict[str, float]:
+    """A water-tunnel run's motion parameters (optional ones defaulted); it has no carriage or heading."""
+    params: dict[str, float] = {}
+    for key in TUNNEL_MOTION_PARAMS:
+        num = _number(t.get(key, TUNNEL_OPTIONAL_DEFAULTS.get(key)))
+        if num is None:
+            col.add(f"'{key}' is missing or not a number", run=rid, where=f"field {key}")
+        else:
+            params[key] = num
+    if "frequency_hz" in params and params["frequency_hz"] <= 0:
+        col.add("frequency_hz must be positive", run=rid, where="field frequency_hz")
+    if "carriage" in t or "heading" in t:
+        col.add("a water-tunnel run has no 'carriage' or 'heading'", run=rid)
+    return params
+
+
+def _towing_run_heading(t: dict, rid: str, col: _Collector) -> Any:
+    """A towing-tank run's heading (checked against HEADINGS); it has no motion file."""
+    heading = t.get("heading")
+    if heading not in HEADINGS:
+        col.add(f"heading must be one of {HEADINGS}, got {heading!r}", run=rid, where="field heading")
+    if "motion" in t:
+        col.add("a towing-tank run has no 'motion' file", run=rid)
+    return heading
+
+
+def _check_run_files(t: dict, rid: str, needed: tuple[str, str], col: _Collector) -> None:
+    """A run gives either an ``mcap`` or the facility's file pair ``needed``, not both."""
+    if "mcap" in t:
         extra = [k for k in needed if k in t]
         if extra:
             col.add(f"give either 'mcap' or the file pair {needed}, not both", run=rid)
@@ -230,16 +245,18 @@ def _parse_run(i: int, t: Any, root: Path, facility: str, col: _Collector) -> Ru
         for k in needed:
             if k not in t:
                 col.add(f"missing '{k}' file (or 'mcap')", run=rid, where=f"field {k}")
-    cycles = t.get("cycles")
+
+
+def _parse_cycles(cycles: Any, rid: str, col: _Collector) -> int | None:
+    """The optional ``cycles``: a positive integer that fits the processed int32 column, else None."""
     if cycles is not None and (not isinstance(cycles, int) or isinstance(cycles, bool) or cycles <= 0):
         col.add("cycles must be a positive integer", run=rid, where="field cycles")
-        cycles = None
-    elif cycles is not None and cycles > 2**31 - 1:  # the processed column is int32
+        return None
+    if cycles is not None and cycles > 2**31 - 1:  # the processed column is int32
         col.add(f"cycles = {cycles} is too large (at most {2**31 - 1}); a typo?", run=rid, where="field cycles",
                 hint="give the number of motion cycles the run recorded")
-        cycles = None
-    return RunSpec(id=rid, flow_speed_mps=speed, params=MappingProxyType(params), heading=heading,
-                   cycles=cycles, **files)
+        return None
+    return cycles
 
 
 def check_manifest(root: str | Path, limits: Limits | None = DEFAULT_LIMITS
@@ -251,56 +268,85 @@ def check_manifest(root: str | Path, limits: Limits | None = DEFAULT_LIMITS
     """
     root = Path(root)
     manifest = root / "campaign.toml"
+    doc = _read_manifest(root, manifest)
+    if isinstance(doc, ContractError):
+        return None, [doc]
     col = _Collector(manifest)
-    if not root.is_dir():
-        return None, [ContractError("campaign folder does not exist", path=root)]
-    if not manifest.is_file():
-        return None, [ContractError("missing campaign.toml", path=root)]
-    try:
-        doc = tomllib.loads(manifest.read_text(encoding="utf-8-sig"))
-    except UnicodeDecodeError as exc:
-        return None, [ContractError(f"not UTF-8 text (byte {exc.start})", path=manifest,
-                                    hint="save campaign.toml as UTF-8")]
-    except tomllib.TOMLDecodeError as exc:
-        return None, [ContractError(f"not valid TOML: {exc}", path=manifest,
-                                    hint="see the campaign.toml example in docs/campaigns.md")]
     schema = doc.get("schema")
     if schema != CAMPAIGN_SCHEMA:
         col.add(f"unknown schema version {schema!r}", where="field schema",
                 hint=f"this workbench reads {CAMPAIGN_SCHEMA!r}")
         return None, col.errors
-    cid = doc.get("id")
-    if not isinstance(cid, str) or not re.match(CAMPAIGN_ID_PATTERN, cid):
-        col.add(f"campaign id {cid!r} must match {CAMPAIGN_ID_PATTERN}", where="field id")
-        cid = str(cid)
-    elif cid != root.name:
-        col.add(f"campaign id {cid!r} differs from the folder name {root.name!r}", where="field id")
+    cid = _parse_id(doc.get("id"), root, col)
     facility = doc.get("facility")
     if facility not in FACILITIES:
         col.add(f"facility must be one of {FACILITIES}, got {facility!r}", where="field facility")
         return None, col.errors
-    date = doc.get("date")
-    if date is not None and not isinstance(date, _dt.date):
-        col.add("date must be a TOML date (YYYY-MM-DD)", where="field date")
-        date = None
+    date = _parse_date(doc.get("date"), col)
     raw_runs = doc.get("runs")
     if not isinstance(raw_runs, list) or not raw_runs:
         col.add("no [[runs]] entries", where="[[runs]]")
         raw_runs = []
     needs_cal = any(isinstance(r, dict) and str(r.get("loadcell", "")).endswith(".bin") for r in raw_runs)
     loadcell = _parse_loadcell(doc.get("loadcell"), col, needs_cal)
-    motion = None
-    if facility == "water_tunnel":
-        mt = doc.get("motion")
-        rate = _number(mt.get("rate_hz")) if isinstance(mt, dict) else None
-        if rate is None or rate <= 0:
-            col.add("[motion] rate_hz must be a positive number", where="[motion] rate_hz")
-            rate = float("nan")
-        fb = mt.get("feedback", False) if isinstance(mt, dict) else False
-        if not isinstance(fb, bool):
-            col.add("[motion] feedback must be true or false", where="[motion] feedback")
-            fb = False
-        motion = MotionSpec(rate_hz=rate, feedback=fb)
+    motion = _parse_motion(doc.get("motion"), col) if facility == "water_tunnel" else None
+    runs = _parse_runs(raw_runs, root, facility, col)
+    camp = Campaign(root=root, id=cid, facility=facility, date=date,
+                    description=str(doc.get("description", "")), loadcell=loadcell,
+                    motion=motion, runs=tuple(runs), test_section_area_m2=_parse_tunnel(doc.get("tunnel"), col))
+    if limits is not None:
+        col.errors.extend(manifest_faults(camp, limits))
+    return camp, col.errors
+
+
+def _read_manifest(root: Path, manifest: Path) -> dict | ContractError:
+    """The parsed TOML of ``manifest`` (a UTF-8 BOM accepted), or the one error that makes it unreadable."""
+    if not root.is_dir():
+        return ContractError("campaign folder does not exist", path=root)
+    if not manifest.is_file():
+        return ContractError("missing campaign.toml", path=root)
+    try:
+        return tomllib.loads(manifest.read_text(encoding="utf-8-sig"))
+    except UnicodeDecodeError as exc:
+        return ContractError(f"not UTF-8 text (byte {exc.start})", path=manifest, hint="save campaign.toml as UTF-8")
+    except tomllib.TOMLDecodeError as exc:
+        return ContractError(f"not valid TOML: {exc}", path=manifest,
+                             hint="see the campaign.toml example in docs/campaigns.md")
+
+
+def _parse_id(cid: Any, root: Path, col: _Collector) -> str:
+    """The campaign id: it matches CAMPAIGN_ID_PATTERN and the folder's name."""
+    if not isinstance(cid, str) or not re.match(CAMPAIGN_ID_PATTERN, cid):
+        col.add(f"campaign id {cid!r} must match {CAMPAIGN_ID_PATTERN}", where="field id")
+        return str(cid)
+    if cid != root.name:
+        col.add(f"campaign id {cid!r} differs from the folder name {root.name!r}", where="field id")
+    return cid
+
+
+def _parse_date(date: Any, col: _Collector) -> _dt.date | None:
+    """The optional TOML date."""
+    if date is not None and not isinstance(date, _dt.date):
+        col.add("date must be a TOML date (YYYY-MM-DD)", where="field date")
+        return None
+    return date
+
+
+def _parse_motion(mt: Any, col: _Collector) -> MotionSpec:
+    """The ``[motion]`` table of a water-tunnel campaign (a missing or bad rate is NaN, feedback off)."""
+    rate = _number(mt.get("rate_hz")) if isinstance(mt, dict) else None
+    if rate is None or rate <= 0:
+        col.add("[motion] rate_hz must be a positive number", where="[motion] rate_hz")
+        rate = float("nan")
+    fb = mt.get("feedback", False) if isinstance(mt, dict) else False
+    if not isinstance(fb, bool):
+        col.add("[motion] feedback must be true or false", where="[motion] feedback")
+        fb = False
+    return MotionSpec(rate_hz=rate, feedback=fb)
+
+
+def _parse_runs(raw_runs: list, root: Path, facility: str, col: _Collector) -> list[RunSpec]:
+    """The usable runs, in the file's order; a repeated id is an error and only its first run is kept."""
     runs: list[RunSpec] = []
     seen: set[str] = set()
     for i, t in enumerate(raw_runs):
@@ -312,12 +358,7 @@ def check_manifest(root: str | Path, limits: Limits | None = DEFAULT_LIMITS
             continue
         seen.add(r.id)
         runs.append(r)
-    camp = Campaign(root=root, id=cid, facility=facility, date=date,
-                    description=str(doc.get("description", "")), loadcell=loadcell,
-                    motion=motion, runs=tuple(runs), test_section_area_m2=_parse_tunnel(doc.get("tunnel"), col))
-    if limits is not None:
-        col.errors.extend(manifest_faults(camp, limits))
-    return camp, col.errors
+    return runs
 
 
 def run_errors(errors: list[ContractError]) -> dict[str | None, list[ContractError]]:
