@@ -11,6 +11,14 @@ model. Target: both tasks in under 10 minutes on 2 cores; prints the speed-up.
     .venv/bin/python benchmarks/bench_optimize.py                 # the registered FED-LSTM ("lstm")
     .venv/bin/python benchmarks/bench_optimize.py --gens 5        # a quick look
     .venv/bin/python benchmarks/bench_optimize.py --model random  # the paper-sized LSTM, untrained
+
+``--workers-compare`` times the same paper-scale search (population 64, the pipeline's 60 s turn
+task, FED-LSTM tabulated, ``--gens`` generations, the direct check of the best ``--verify``) three
+ways: one process with one torch thread, one process with two torch threads, and two simulator
+worker processes with one thread each; it prints wall and CPU time, the ratios, the load average
+and whether the three runs' populations and kept gaits are identical:
+
+    .venv/bin/python benchmarks/bench_optimize.py --workers-compare --model datasets/models/fed-lstm --gens 2
 """
 
 from __future__ import annotations
@@ -43,7 +51,14 @@ def main() -> None:
     ap.add_argument("--gens", type=int, default=None)
     ap.add_argument("--pop", type=int, default=None)
     ap.add_argument("--json", default=None, help="also write the numbers to this JSON file")
+    ap.add_argument("--workers-compare", action="store_true",
+                    help="1 process x 1 thread, 1 x 2 threads, 2 worker processes x 1 thread on the same search")
+    ap.add_argument("--verify", type=int, default=16, help="--workers-compare: gaits in the direct check")
+    ap.add_argument("--task", default="turn", choices=("turn", "straight"), help="--workers-compare: the task")
     args = ap.parse_args()
+    if args.workers_compare:
+        compare_workers(args)
+        return
 
     import torch
 
@@ -104,6 +119,68 @@ def main() -> None:
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump(summary, fh, indent=2)
+
+
+def _cpu_s() -> float:
+    """CPU seconds (user + system) of this process and its ended children (the workers, once their pool closed)."""
+    import resource
+
+    a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
+def compare_workers(args) -> None:
+    """The same search three ways (see the module text); prints a table and writes --json."""
+    import os
+    from dataclasses import replace
+
+    import numpy as np
+    import torch
+
+    from workbench.gait.config import load_config
+    from workbench.gait.optimize import optimize_task
+    from workbench.hydro.legmodel import load_leg_model
+    from workbench.hydro.robot import load_robot
+
+    cfg = load_config(args.params).with_overrides(pop_size=args.pop or 64, n_gen=args.gens or 3)
+    cfg = replace(cfg, verify_direct=args.verify, retain=min(8, args.verify))
+    model = untrained_fed_lstm() if args.model == "random" else load_leg_model(args.model)
+    drag = "datasets/drag/demo-towing/drag.json"
+    robot = load_robot(cfg.robot, drag_json=drag if os.path.exists(drag) else cfg.drag_json)
+    ways = [("1 process, 1 torch thread", 1, 1), ("1 process, 2 torch threads", 1, 2),
+            ("2 worker processes, 1 thread each", 2, 2)]
+    print(f"{args.task}: NSGA-II {cfg.nsga2.pop_size} x {cfg.nsga2.n_gen}, {cfg.task(args.task).spec.cap_s:g} s swims, "
+          f"direct check of {cfg.verify_direct}; model {args.model!r}; {os.cpu_count()} cores", flush=True)
+    rows, outs = [], []
+    for name, workers, threads in ways:
+        torch.set_num_threads(threads)
+        load0, c0, t0 = os.getloadavg()[0], _cpu_s(), time.perf_counter()
+        o = optimize_task(cfg, args.task, model, robot, model_label="lstm", plots=False, workers=workers)
+        wall, cpu = time.perf_counter() - t0, _cpu_s() - c0
+        m = o.metrics
+        rows.append({"way": name, "workers": workers, "torch_threads_per_process": max(1, threads // workers), "wall_s": wall, "cpu_s": cpu,
+                     "search_wall_s": m["simulation_seconds"], "verify_wall_s": m.get("verify_seconds", 0.0),
+                     "load_start": load0, "load_end": os.getloadavg()[0], "best_score": m["best_score"]})
+        outs.append(o)
+        print(f"  {name}: {wall:.0f} s wall ({m['simulation_seconds']:.0f} s search, {m.get('verify_seconds', 0):.0f} s "
+              f"direct check), {cpu:.0f} s CPU, load {load0:.1f} -> {os.getloadavg()[0]:.1f}", flush=True)
+    base = rows[0]["wall_s"]
+    for r, o in zip(rows, outs, strict=True):
+        r["speedup_wall"] = base / r["wall_s"]
+        r["same_population"] = bool(np.array_equal(o.result.f, outs[0].result.f))
+        r["same_kept_gaits"] = bool(np.array_equal(o.retained.x, outs[0].retained.x)
+                                    and np.array_equal(o.retained.f, outs[0].retained.f))
+        r["max_abs_diff_f"] = float(np.abs(o.result.f - outs[0].result.f).max())
+    print("\n| way | wall (s) | search (s) | direct check (s) | CPU (s) | wall speed-up | load at start | identical |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        same = "yes" if r["same_population"] and r["same_kept_gaits"] else f"no (max |df| {r['max_abs_diff_f']:.1e})"
+        print(f"| {r['way']} | {r['wall_s']:.0f} | {r['search_wall_s']:.0f} | {r['verify_wall_s']:.0f} | "
+              f"{r['cpu_s']:.0f} | {r['speedup_wall']:.2f} | {r['load_start']:.1f} | {same} |")
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump({"task": args.task, "pop_size": cfg.nsga2.pop_size, "n_gen": cfg.nsga2.n_gen,
+                       "verify_direct": cfg.verify_direct, "model": args.model, "rows": rows}, fh, indent=2)
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ def register(sub) -> None:
   workbench optimize --task straight --model datasets/models/fed-lstm-16 --label lstm16 --out /tmp/gaits
   workbench optimize --task straight --model models:/fed-lstm@tuned --pop 64 --gens 50 --seed 3 --out /tmp/gaits
   workbench optimize --task turn --model ef --drag datasets/drag/demo-towing/drag.json --no-mlflow --out /tmp/g
+  workbench optimize --task turn --model ef --workers 2 --out /tmp/g    # 2 simulator processes, same results
   workbench simulate --gaits datasets/gaits/straight-ef.json --rank 1 --out /tmp/best   # swim the winner
 """)
     p.add_argument("--task", required=True, choices=("straight", "turn"), help="what the robot should do")
