@@ -66,8 +66,8 @@ def test_plan_measure_validate_add(ensemble_dir, tmp_path, capsys, monkeypatch):
     rec = plan_campaign(ensemble_dir[0], [gaits], 3, out, diagnosis=diag, settings=s, date="2026-01-02")
     doc = tomllib.loads(out.read_text())
     assert doc["id"] == "next-1" and (out.parent / "plan.md").is_file()
-    # the gait file names no model: its gaits were swum with EF legs, and plan.md says so
-    assert "EF (the gait file names no model)" in (out.parent / "plan.md").read_text()
+    # plan_campaign without ``legs`` swims with EF legs, and plan.md says so
+    assert "swum with straight-x.json: ef." in (out.parent / "plan.md").read_text()
     runs = doc["runs"]
     # three for the uncertainty, three for the ambiguous pair (zero flow at both frequency ends, top flow)
     assert len(runs) == 6 and rec["n_diagnosis_runs"] == 3
