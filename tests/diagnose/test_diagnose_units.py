@@ -14,7 +14,7 @@ from workbench.diagnose.library import EffectLibrary, default_library
 from workbench.diagnose.loop import DiagnoseSettings
 from workbench.errors import ModelError, ParamsError
 from workbench.hydro.ef import EFParams, EmpiricalFormula
-from workbench.hydro.motion import JointSinusoid, RunMotion
+from workbench.hydro.motion import JointSinusoid, LegMotion, RunMotion
 
 
 def _run(run_id, params, flow):
@@ -92,6 +92,35 @@ def test_servo_lag_transform_shifts_the_motion_by_its_phase():
     w = 2 * np.pi * 0.5
     amp = np.ptp(lagged.theta_h_deg[0, 300:]) / np.ptp(m.theta_h_deg[0, 300:])
     assert amp == pytest.approx(1 / np.sqrt(1 + (w * 0.04) ** 2), rel=2e-3)
+
+
+@pytest.mark.parametrize("dead_s, lag_s", [(0.06, 0.0), (0.01, 0.04), (0.025, 0.025)])
+def test_servo_lag_with_a_dead_time_matches_the_servos_response(dead_s, lag_s):
+    """Dead time plus first-order lag: at each frequency gain 1/|1 + j w lag| and phase w dead + atan(w lag)."""
+    dt = 1 / 65
+    t = np.arange(0, 12, dt)
+    tau = dead_s + lag_s
+    nl = {"tau_s": tau, "dead_share": dead_s / tau}
+    assert ServoLag().canonical_params({}, nl, {})[0]["dead_s"] == pytest.approx(dead_s)
+    for f in (0.4, 2.0, 5.5):  # a stroke's fundamental to the ingest's cutoff
+        w = 2 * np.pi * f
+        x = np.sin(w * t)[None]
+        m = LegMotion(dt, x, x, w * np.cos(w * t)[None], x, np.full_like(x, 0.1))
+        y = ServoLag().transform_motion(m, nl).theta_h_deg[0]
+        gain, phase = 1 / np.hypot(1, w * lag_s), w * dead_s + np.arctan(w * lag_s)
+        ref = gain * np.sin(w * t - phase)
+        late = t > 2.0  # past the lag's start from rest
+        # the lag's first-order hold is exact for an input linear between ticks: 2 % at 5.5 Hz on 65 Hz ticks
+        assert np.abs(y - ref)[late].max() < 0.004 * f, (f, np.abs(y - ref)[late].max())
+        if dead_s and f > 1:  # a first-order lag of the same tau is far off in the harmonics
+            lag_only = np.sin(w * t - np.arctan(w * tau)) / np.hypot(1, w * tau)
+            assert np.abs(lag_only - ref)[late].max() > 0.01 * f
+    # a saved model from before the dead time (``{"tau_s": x}``) is a pure first-order lag
+    lagged = ServoLag().transform_motion(m, {"tau_s": 0.04}).theta_h_deg[0]
+    assert np.allclose(lagged, lag_filter(m.theta_h_deg[0], 0.04, dt))
+    assert ServoLag(shapes="lag").search[0].name == "tau_s" and len(ServoLag(shapes="lag").search) == 1
+    with pytest.raises(ModelError, match="shapes"):
+        ServoLag(shapes="dead")
 
 
 def test_weighted_least_squares_with_per_run_columns_matches_a_dense_solve():

@@ -62,6 +62,10 @@ class SelectionSettings:
     tone_line_left: float = 0.4
     #: a claim needs its 95 % interval clear of zero (z = 1.96) on at least one magnitude parameter
     interval_z: float = 1.96
+    #: greedy paths followed besides the main one: a look-ahead effect (``Effect.lookahead``, a servo
+    #: delay) acceptable at a step but passed over is accepted there and the selection goes on; the
+    #: path with the better final held-out fit (significant at ``alpha``) wins. 0: greedy only
+    lookahead_branches: int = 1
 
 
 @dataclass
@@ -158,6 +162,35 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
     se = np.sqrt(max(var, 1e-300) / n / max(n - 1, 1))
     t = float(mean / se)
     return {"t": t, "p": float(stats.t.sf(t, df=max(n - 1, 1))), "llr": float(g.sum()), "n_blocks": n}, gain_c
+
+
+@dataclass
+class _Path:
+    """A selection path: the configuration so far, its fit and record, and the look-ahead branches passed."""
+
+    config: Configuration
+    names: list[str]
+    current: lsq.Fit
+    coefs: dict
+    steps: list
+    table: list
+    last_nl: dict
+    rounds: int = 0
+    branches: list = field(default_factory=list)
+
+    def copy(self) -> "_Path":
+        """An independent copy (fits are shared: they are not changed in place)."""
+        return _Path(self.config.copy(), list(self.names), self.current, dict(self.coefs), list(self.steps),
+                     list(self.table), {k: dict(v) for k, v in self.last_nl.items()}, self.rounds, [])
+
+
+@dataclass
+class _Branch:
+    """A look-ahead effect acceptable at a step but passed over: the path before that step, and the candidate."""
+
+    path: _Path
+    forced: Candidate
+    level: float
 
 
 class StepwiseSelection:
@@ -302,43 +335,94 @@ class StepwiseSelection:
         effect is tried at under a configuration; ``plausible(candidate, current_config,
         current_fit)`` returns ``(ok, note)`` for structural checks. Each effect is configured on
         the campaign first (:meth:`~workbench.diagnose.effects.base.Effect.configure`).
+
+        Look-ahead: an effect that changes what every other term sees (``Effect.lookahead``, a
+        servo's delay) may be acceptable at a step and still lose it to a force effect that takes
+        its misfit channel by channel; once that force effect is in, the delay's own gain is no
+        longer significant and the greedy path never comes back. The path that accepts it at that
+        step is then followed too, and wins when its final held-out fit beats the greedy one's
+        by the held-out test at ``alpha``.
         """
         s = self.settings
-        hac = problem.settings.hac_lags
-        config = Configuration()
-        names: list[str] = []
-        current = problem.fit(config, names=[])
-        coefs: dict = {}
-        steps: list[Step] = []
-        table: list[dict] = []
-        last_nl: dict[str, dict] = {}
         library = library.configured(lambda: self._sample(problem))
-        for _ in range(s.max_effects):
+        start = _Path(Configuration(), [], problem.fit(Configuration(), names=[]), {}, [], [], {})
+        main = self._forward(problem, library, start, peaks_of, plausible, progress)
+        result = self._finish(problem, main)
+        for branch in main.branches[: s.lookahead_branches]:
+            if branch.forced.effect.name in result.config.names():
+                continue
+            path = self._force(problem, branch, plausible)
+            if path is None:
+                continue
+            alt = self._finish(problem, self._forward(problem, library, path, peaks_of, plausible, progress))
+            test, _ = judge(result.fit, alt.fit, alt.fit.grams, problem.settings.hac_lags)
+            if test["llr"] > 0 and test["p"] < s.alpha:
+                result = alt
+        return result
+
+    def _forward(self, problem, library, path: "_Path", peaks_of, plausible, progress) -> "_Path":
+        """Greedy steps from ``path`` until no candidate is accepted; look-ahead effects passed over are recorded."""
+        s = self.settings
+        hac = problem.settings.hac_lags
+        path = path.copy()
+        while path.rounds < s.max_effects:
+            path.rounds += 1
+            config, names, current, coefs = path.config, path.names, path.current, path.coefs
             remaining = [e for e in library if e.name not in config.names()]
-            cands = self._candidates(problem, config, coefs, names, remaining, current, peaks_of, last_nl, progress)
+            cands = self._candidates(problem, config, coefs, names, remaining, current, peaks_of, path.last_nl,
+                                     progress)
             if not cands:
                 break
             cands, table, level = self._judge_all(problem, cands, coefs, current, config, plausible)
+            path.table = table
             best = self._pick(problem, cands, table, coefs, current, config, level, plausible)
             if best is None:
                 break
             mine = {e.name for e in best.effects}
+            seen = {b.forced.effect.name for b in path.branches}
+            for c in cands:
+                if (c.ok and c is not best and c.partner is None and c.effect.lookahead
+                        and c.effect.name not in mine | seen):
+                    path.branches.append(_Branch(path.copy(), c, level))
             alternatives = [c.label for c in cands if c is not best and not {e.name for e in c.effects} & mine
                             and c.test["llr"] >= s.ambiguity_ratio * best.test["llr"] and c.test["llr"] > 0]
             ambiguous = self._ambiguous(best, cands, level, hac, s.alpha)
-            before_c = _heldout_mse(current)
-            config, names = best.config, best.names
-            current = problem.fit(config, coefs, names)
-            coefs = current.coefs()
-            for e in best.effects:
-                member = Candidate(e, Active(e, dict(best.active.nl) if e is best.effect else {}), best.config,
-                                   best.names, best.fit, best.test, best.gain_c, best.profile, True, best.note)
-                steps.append(Step(member, before_c, _heldout_mse(current), table, alternatives,
-                                  [n for n in ambiguous if n != e.name]))
-        if s.refine and any(a.effect.search for a in config.actives):
-            config, current = self._refine(problem, config, coefs, names, current)
-        config, names, current, steps = self._backward_check(problem, config, names, current, steps)
-        return SelectionResult(config, names, current, steps, table)
+            self._accept(problem, path, best, table, alternatives, ambiguous)
+        return path
+
+    @staticmethod
+    def _accept(problem, path: "_Path", best: Candidate, table, alternatives, ambiguous) -> None:
+        """Take ``best`` into ``path`` (in place) and record its step."""
+        before_c = _heldout_mse(path.current)
+        path.config, path.names = best.config, best.names
+        path.current = problem.fit(path.config, path.coefs, path.names)
+        path.coefs = path.current.coefs()
+        for e in best.effects:
+            member = Candidate(e, Active(e, dict(best.active.nl) if e is best.effect else {}), best.config,
+                               best.names, best.fit, best.test, best.gain_c, best.profile, True, best.note)
+            path.steps.append(Step(member, before_c, _heldout_mse(path.current), table, alternatives,
+                                   [n for n in ambiguous if n != e.name]))
+
+    def _force(self, problem, branch: "_Branch", plausible) -> "_Path | None":
+        """The branch's path with its passed-over effect accepted (judged with the model itself; None if it fails)."""
+        path = branch.path.copy()
+        c = branch.forced
+        if c.surrogate:
+            c.fit = problem.fit(c.config, path.coefs, c.names, surrogate=False)
+            c.surrogate = False
+            self._assess(problem, c, path.coefs, path.current, path.config, branch.level, plausible)
+            if not c.ok:
+                return None
+        self._accept(problem, path, c, path.table, [], [])
+        return path
+
+    def _finish(self, problem, path: "_Path") -> SelectionResult:
+        """Refine the searched parameters jointly, then drop effects that no longer earn their place."""
+        config, names, current = path.config, path.names, path.current
+        if self.settings.refine and any(a.effect.search for a in config.actives):
+            config, current = self._refine(problem, config, path.coefs, names, current)
+        config, names, current, steps = self._backward_check(problem, config, names, current, list(path.steps))
+        return SelectionResult(config, names, current, steps, path.table)
 
     def _candidates(self, problem, config, coefs, names, remaining, current, peaks_of, last_nl, progress):
         """Every remaining effect fitted beside the chosen ones (linear ones also in pairs; tones at each line)."""
@@ -529,7 +613,7 @@ class StepwiseSelection:
                          cand.ok, cand.note, cand.partner)
 
     def _parabola(self, problem, config, coefs, names, effect, start: dict) -> dict:
-        """One searched parameter finished by a parabola through three values around ``start``.
+        """The first searched parameter finished by a parabola through three values around ``start`` (others kept).
 
         Log-scaled parameters (a lag) at start x exp(-0.12, 0, 0.12); others at start -+ 0.03.
         """
@@ -537,7 +621,7 @@ class StepwiseSelection:
         extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
 
         def objective(v: float) -> float:
-            cfg = config.with_effect(Active(effect, {p.name: v}))
+            cfg = config.with_effect(Active(effect, {**start, p.name: v}))
             gr = problem.grams(cfg, coefs, names + extra, sets="search")
             return float(lsq.fit(gr, problem.weights, problem.settings.hac_lags).sse_block.sum())
 
@@ -558,7 +642,7 @@ class StepwiseSelection:
             v = value(vx)
             if objective(v) < ys.min():
                 best = v
-        return {p.name: best}
+        return {**start, p.name: best}
 
     def _refine(self, problem, config, coefs, names, current):
         """Re-search each nonlinear parameter with the others at their final values (one round).
@@ -572,10 +656,17 @@ class StepwiseSelection:
                 if not a.effect.search:
                     continue
                 rest = config.without(a.name)
-                if surrogate and a.effect.stage == "input" and len(a.effect.search) == 1:
+                if surrogate and a.effect.stage == "input":
                     # the surrogate's optimum is right to first order: a parabola through three
-                    # evaluations of the model itself finishes it (each costs a full model run)
+                    # evaluations of the model itself finishes its first searched parameter (each
+                    # costs a full model run; a shape parameter keeps the surrogate's value)
                     nl = self._parabola(problem, rest, coefs, names, a.effect, dict(a.nl))
+                elif a.effect.lookahead:
+                    # a delay's optimum moves as the force effects come in, and a warm start from an
+                    # early step can sit in its old basin (a dead time found as a short pure lag):
+                    # its whole grid is searched again, the current values added to it
+                    grids = {p.name: tuple(sorted({*p.grid, float(a.nl[p.name])})) for p in a.effect.search}
+                    nl, _ = self.search(problem, rest, coefs, names, a.effect, grids=grids)
                 else:
                     nl, _ = self.search(problem, rest, coefs, names, a.effect, start=dict(a.nl))
                 config = rest.with_effect(Active(a.effect, nl))

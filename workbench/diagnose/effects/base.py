@@ -140,6 +140,10 @@ class Effect:
     surrogate_ok: bool = False
     #: physically plausible range of each canonical parameter (a fit outside absorbs something else)
     ranges: dict[str, tuple[float, float]] = {}
+    #: the effect changes what every other term sees (a servo's delay moves every force column): when
+    #: it is acceptable at a step but another effect wins, the selection also follows the path that
+    #: takes it there (a force effect taken first absorbs its misfit channel by channel)
+    lookahead: bool = False
 
     # ------------------------------------------------------------------ composition
     def __add__(self, other: "Effect | EffectLibrary") -> "EffectLibrary":
