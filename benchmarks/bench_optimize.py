@@ -14,8 +14,8 @@ model. Target: both tasks in under 10 minutes on 2 cores; prints the speed-up.
 
 ``--workers-compare`` times the same paper-scale search (population 64, the pipeline's 60 s turn
 task, FED-LSTM tabulated, ``--gens`` generations, the direct check of the best ``--verify``) three
-ways: one process with one torch thread, one process with two torch threads, and two simulator
-worker processes with one thread each; it prints wall and CPU time, the ratios, the load average
+ways: two simulator worker processes with one torch thread each, one process with one thread,
+one process with two threads; it prints wall and CPU time, the ratios, the load average
 and whether the three runs' populations and kept gaits are identical:
 
     .venv/bin/python benchmarks/bench_optimize.py --workers-compare --model datasets/models/fed-lstm --gens 2
@@ -54,6 +54,8 @@ def main() -> None:
     ap.add_argument("--workers-compare", action="store_true",
                     help="1 process x 1 thread, 1 x 2 threads, 2 worker processes x 1 thread on the same search")
     ap.add_argument("--verify", type=int, default=16, help="--workers-compare: gaits in the direct check")
+    ap.add_argument("--ways", type=int, default=3, choices=(1, 2, 3),
+                    help="--workers-compare: 2 workers only, and 1 x 1 thread, and 1 x 2 threads")
     ap.add_argument("--task", default="turn", choices=("turn", "straight"), help="--workers-compare: the task")
     args = ap.parse_args()
     if args.workers_compare:
@@ -147,8 +149,8 @@ def compare_workers(args) -> None:
     model = untrained_fed_lstm() if args.model == "random" else load_leg_model(args.model)
     drag = "datasets/drag/demo-towing/drag.json"
     robot = load_robot(cfg.robot, drag_json=drag if os.path.exists(drag) else cfg.drag_json)
-    ways = [("1 process, 1 torch thread", 1, 1), ("1 process, 2 torch threads", 1, 2),
-            ("2 worker processes, 1 thread each", 2, 2)]
+    ways = [("2 worker processes, 1 thread each", 2, 2), ("1 process, 1 torch thread", 1, 1),
+            ("1 process, 2 torch threads", 1, 2)][:args.ways]
     print(f"{args.task}: NSGA-II {cfg.nsga2.pop_size} x {cfg.nsga2.n_gen}, {cfg.task(args.task).spec.cap_s:g} s swims, "
           f"direct check of {cfg.verify_direct}; model {args.model!r}; {os.cpu_count()} cores", flush=True)
     rows, outs = [], []
@@ -160,17 +162,25 @@ def compare_workers(args) -> None:
         m = o.metrics
         rows.append({"way": name, "workers": workers, "torch_threads_per_process": max(1, threads // workers), "wall_s": wall, "cpu_s": cpu,
                      "search_wall_s": m["simulation_seconds"], "verify_wall_s": m.get("verify_seconds", 0.0),
-                     "load_start": load0, "load_end": os.getloadavg()[0], "best_score": m["best_score"]})
+                     "load_start": load0, "load_end": os.getloadavg()[0], "best_score": m["best_score"],
+                     "workers_cpu_s": m.get("workers_cpu_s"), "workers_busiest_cpu_s": m.get("workers_busiest_cpu_s")})
         outs.append(o)
+        if workers > 1:  # load-independent: the parts' CPU seconds, all of them and the busiest part of each batch
+            print(f"    workers' CPU {m['workers_cpu_s']:.0f} s, on the critical path {m['workers_busiest_cpu_s']:.0f} s: "
+                  f"on idle cores the swims run {m['workers_cpu_s'] / m['workers_busiest_cpu_s']:.2f}x faster than in "
+                  f"one process", flush=True)
+        if args.json:
+            with open(args.json, "w", encoding="utf-8") as fh:
+                json.dump({"rows": rows}, fh, indent=2)
         print(f"  {name}: {wall:.0f} s wall ({m['simulation_seconds']:.0f} s search, {m.get('verify_seconds', 0):.0f} s "
               f"direct check), {cpu:.0f} s CPU, load {load0:.1f} -> {os.getloadavg()[0]:.1f}", flush=True)
-    base = rows[0]["wall_s"]
+    ref = 1 if len(rows) > 1 else 0  # one process, one thread
     for r, o in zip(rows, outs, strict=True):
-        r["speedup_wall"] = base / r["wall_s"]
-        r["same_population"] = bool(np.array_equal(o.result.f, outs[0].result.f))
-        r["same_kept_gaits"] = bool(np.array_equal(o.retained.x, outs[0].retained.x)
-                                    and np.array_equal(o.retained.f, outs[0].retained.f))
-        r["max_abs_diff_f"] = float(np.abs(o.result.f - outs[0].result.f).max())
+        r["speedup_wall"] = rows[ref]["wall_s"] / r["wall_s"]
+        r["same_population"] = bool(np.array_equal(o.result.f, outs[ref].result.f))
+        r["same_kept_gaits"] = bool(np.array_equal(o.retained.x, outs[ref].retained.x)
+                                    and np.array_equal(o.retained.f, outs[ref].retained.f))
+        r["max_abs_diff_f"] = float(np.abs(o.result.f - outs[ref].result.f).max())
     print("\n| way | wall (s) | search (s) | direct check (s) | CPU (s) | wall speed-up | load at start | identical |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:

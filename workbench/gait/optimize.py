@@ -125,6 +125,9 @@ def optimize_task(cfg: OptimizeConfig, task: str, leg_model: LegForceModel, robo
         finally:
             problem.workers = None
     outcome.metrics["workers"] = n_workers
+    if pool is not None:  # the workers' CPU, all and on the critical path (docs/gaits.md "Workers")
+        outcome.metrics["workers_cpu_s"] = pool.cpu_s
+        outcome.metrics["workers_busiest_cpu_s"] = pool.busiest_cpu_s
     outcome.gait_doc["workers"] = n_workers
     return outcome
 

@@ -16,6 +16,7 @@ parent-death signal, Ctrl-C ignored in the workers, ended on any exception in th
 from __future__ import annotations
 
 import pickle
+import time
 from contextlib import contextmanager
 from dataclasses import replace
 from typing import Iterator
@@ -69,12 +70,14 @@ def _swim(gaits: GaitBatch, initial_flow, mode: str, full: bool) -> dict:
     from workbench.gait.objectives import objectives
     from workbench.gait.problem import EvaluationLog
 
+    c0 = time.process_time()
     problem = _problem(mode)
     problem.log = EvaluationLog()
     traj = problem.simulate(gaits, initial_flow)
     return {"f": objectives(traj, problem.spec), "residual": traj.residual_mps, "converged": traj.converged,
             "iterations": traj.iterations, "traj": traj if full else None,
-            "unconverged": problem.log.unconverged, "table": dict(problem.log.table)}
+            "unconverged": problem.log.unconverged, "table": dict(problem.log.table),
+            "cpu_s": time.process_time() - c0}
 
 
 def concatenate(parts: list[Trajectory]) -> Trajectory:
@@ -94,6 +97,10 @@ class SimWorkers:
     def __init__(self, executor, workers: int):
         self.executor = executor
         self.workers = workers
+        #: CPU seconds of the parts, all of them and the busiest part of each batch (their sum is the
+        #: time a batch-by-batch run needs on idle cores, one per worker: load-independent balance measure)
+        self.cpu_s = 0.0
+        self.busiest_cpu_s = 0.0
 
     def parts(self, n: int) -> list[np.ndarray]:
         """The contiguous index ranges a batch of ``n`` gaits is cut into (one per worker, none empty)."""
@@ -104,6 +111,8 @@ class SimWorkers:
         jobs = [self.executor.submit(_swim, gaits.rows(idx), None if initial_flow is None else initial_flow[idx],
                                      mode, full) for idx in self.parts(len(gaits))]
         res = [j.result() for j in jobs]
+        self.cpu_s += sum(r["cpu_s"] for r in res)
+        self.busiest_cpu_s += max(r["cpu_s"] for r in res)
         return {"f": np.concatenate([r["f"] for r in res]), "residual": np.concatenate([r["residual"] for r in res]),
                 "converged": np.concatenate([r["converged"] for r in res]),
                 "traj": concatenate([r["traj"] for r in res]) if full else None,
