@@ -33,6 +33,7 @@ def trained(project, parquet):
     return out
 
 
+@pytest.mark.slow
 def test_train_writes_model_folder_and_registers_champion(trained, project):
     from mlflow import MlflowClient
 
@@ -86,6 +87,7 @@ print(json.dumps({{"run_id": m.info["run_id"], "uri": m.info["model_uri"], "mse"
         assert v == pytest.approx(logged[f"test_mse_{ch}"], rel=1e-6)
 
 
+@pytest.mark.slow
 def test_evaluate_writes_the_contract_metrics_and_figures(trained, project, parquet, tmp_path):
     interp, measured = parquet
     out, figs = tmp_path / "metrics" / "leg_models.json", tmp_path / "figs"
@@ -118,6 +120,7 @@ def test_evaluate_writes_the_contract_metrics_and_figures(trained, project, parq
     assert runs[0].data.tags["dvc_stage"] == "evaluate"
 
 
+@pytest.mark.slow
 def test_champion_falls_back_to_the_local_folder(trained, project, capsys):
     from workbench.errors import ModelError
     from workbench.learn.registry import load_champion
@@ -143,6 +146,7 @@ def test_bad_input_is_one_line(project, parquet, capsys, tmp_path):
     assert not (tmp_path / "m.json").exists()
 
 
+@pytest.mark.slow
 def test_an_ad_hoc_train_run_registers_nothing_unless_asked(trained, project, parquet):
     """The README tour trains a quick model: the champion alias must stay where the pipeline put it."""
     import mlflow
