@@ -138,6 +138,20 @@ def test_maskell_prior_from_the_manifest_on_a_planted_blockage(tmp_path):
     assert lo - 1e-9 <= p["epsilon"] <= hi + 1e-9
     report = (tmp_path / "with-prior" / "report.md").read_text()
     assert "epsilon_prior" in report
+    # the saved augmented model rebuilds the prior's effect and predicts on a motion of its own
+    from workbench.diagnose.augmented import load_augmented
+    from workbench.hydro.motion import LegMotion
+
+    aug = load_augmented(tmp_path / "with-prior")
+    z = np.zeros((2, 200))
+    tt = np.arange(200) / 65
+    th, tk = -45 + 30 * np.sin(2 * np.pi * 0.5 * tt), 40 + 20 * np.cos(2 * np.pi * 0.5 * tt)
+    motion = LegMotion(1 / 65, z + th, z + tk, z + 30 * 2 * np.pi * 0.5 * np.cos(2 * np.pi * 0.5 * tt),
+                       z - 20 * 2 * np.pi * 0.5 * np.sin(2 * np.pi * 0.5 * tt), z + np.array([[0.0], [0.2]]))
+    w, w0 = aug.wrench(motion), aug.base.wrench(motion)
+    assert np.all(np.isfinite(w))
+    assert np.allclose(w[0], aug.lowpass(w0, 1 / 65, axis=-2)[0], atol=1e-9)     # no flow: no blockage
+    assert not np.allclose(w[1], aug.lowpass(w0, 1 / 65, axis=-2)[1], atol=1e-6)
 
     # the same campaign without the table: the searched epsilon, as before; with --tunnel-area: the prior again
     man = folder / "campaign.toml"

@@ -47,8 +47,16 @@ def frontal_area(ctx) -> np.ndarray:
 def prior_epsilon(ctx, area_m2: float, theta: float = THETA, c_d: float = C_D) -> np.ndarray:
     """Per run (B,): Maskell's ``epsilon = theta C_D S / C`` (zero for runs without flow)."""
     eps = theta * c_d * frontal_area(ctx) / area_m2
-    flow = np.asarray(getattr(ctx.rs, "flow", np.ones(eps.shape)), float)
-    return np.where(np.abs(flow) > 0, eps, 0.0)
+    return np.where(run_flow(ctx) > 0, eps, 0.0)
+
+
+def run_flow(ctx) -> np.ndarray:
+    """Per run (B,): the flow speed's magnitude (the batch's, else the largest in the motion)."""
+    flow = getattr(ctx.rs, "flow", None)
+    if flow is not None:
+        return np.abs(np.asarray(flow, float))
+    u = np.abs(np.asarray(ctx.motion.flow_speed_mps, float))
+    return u.reshape(u.shape[0], -1).max(axis=1) if u.ndim else np.full(ctx.motion.shape[0], float(u))
 
 
 def wrench_at_factors(ctx, factors: np.ndarray) -> np.ndarray:

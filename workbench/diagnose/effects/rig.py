@@ -181,11 +181,11 @@ class TunnelBlockage(Effect):
     def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
         if self.area is None:
             return Terms()
-        from workbench.diagnose.maskell import blockage_terms, prior_epsilon
+        from workbench.diagnose.maskell import blockage_terms, prior_epsilon, run_flow
 
         eps = prior_epsilon(ctx, self.area, self.theta, self.c_d)
-        for rid, e, u in zip(getattr(ctx.rs, "run_ids", ()), eps, np.asarray(ctx.rs.flow), strict=False):
-            if abs(float(u)) > 0:
+        for rid, e, u in zip(getattr(ctx.rs, "run_ids", ()), eps, run_flow(ctx), strict=False):
+            if u > 0:
                 self._eps[rid] = float(e)
         fixed, col = blockage_terms(ctx, eps)
         return Terms(["d_maskell"], [col], [np.ones(6, bool)], fixed=fixed)
