@@ -163,7 +163,11 @@ def test_build_accepts_a_ready_instance_and_refuses_a_non_mapping():
 
 def _repository_sections():
     from workbench.commands.train_ensemble import EnsembleSettings
+    from workbench.gait.config import TrackingSettings as GaitTrackingSettings
+    from workbench.gait.problem import SimSettings
     from workbench.gait.run import NSGA2Settings
+    from workbench.gait.space import GaitSpace
+    from workbench.gait.tabulate import TabulationSettings
     from workbench.hydro.robot import BodyDragSettings, LegsSettings, RobotBodySettings
     from workbench.learn.config import EvaluateSettings, LearnSettings
     from workbench.learn.tune import TuneSettings
@@ -184,6 +188,10 @@ def _repository_sections():
             (TruthSettings, "pipelines/virtual_lab.yaml", "tunnel.physics"),
             (RobotBodySettings, "pipelines/robot.yaml", "robot"),
             (EnsembleSettings, "pipelines/plan.yaml", "ensemble"),
+            (GaitSpace, "pipelines/gait.yaml", "optimize.space"),
+            (SimSettings, "pipelines/gait.yaml", "optimize.simulation"),
+            (TabulationSettings, "pipelines/gait.yaml", "optimize.tabulation"),
+            (GaitTrackingSettings, "pipelines/gait.yaml", "optimize.tracking"),
             (LegsSettings, "pipelines/robot.yaml", "legs"),
             (BodyDragSettings, "pipelines/robot.yaml", "body_drag")]
 
@@ -231,6 +239,22 @@ def test_the_migrated_loaders_read_the_repository_files_like_load_settings():
     assert load_config(REPO / "pipelines/learn.yaml") == load_settings(LearnSettings, REPO / "pipelines/learn.yaml",
                                                                        "train")
     assert load_robot(REPO / "pipelines/robot.yaml") == RobotSettings()  # the documented defaults are the file's
+
+
+def test_the_gait_file_loads_every_top_level_value_and_task_unchanged():
+    from workbench.gait.config import load_config
+
+    raw = yaml.safe_load((REPO / "pipelines/gait.yaml").read_text(encoding="utf-8"))["optimize"]
+    cfg = load_config(REPO / "pipelines/gait.yaml")
+    for key, value in raw.items():
+        if key != "tasks":
+            assert _same(getattr(cfg, key), value), key
+    assert set(cfg.tasks) == set(raw["tasks"]) == {"straight", "turn"}
+    for name, task in raw["tasks"].items():
+        got = cfg.task(name)
+        assert list(got.hv_reference) == task["hv_reference"]
+        assert _same_settings(got.spec, {**{k: v for k, v in task.items() if k != "hv_reference"}, "task": name,
+                                         "weights": raw["weights"]})
 
 
 @pytest.mark.parametrize("argv", [

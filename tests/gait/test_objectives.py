@@ -83,5 +83,8 @@ def test_task_spec_refuses_nonsense():
         TaskSpec("turn", target_yaw_deg=0.0)
     with pytest.raises(ValueError):
         TaskSpec("turn", turn_direction="up")
-    with pytest.raises(ValueError):
+    from workbench.errors import ParamsError
+
+    with pytest.raises(ParamsError, match=r"optimize\.tasks\.straight\.finish_m: unknown setting 'finish_m' "
+                                          r"\(did you mean 'finish_distance_m'\?"):
         TaskSpec.from_dict("straight", {"finish_m": 2.0})

@@ -159,7 +159,12 @@ def test_wrapper_is_faithful_for_other_motions_and_checks_the_batch(robot):
 
 
 def test_settings_refuse_unknown_keys():
-    with pytest.raises(ValueError):
-        TabulationSettings.from_dict({"flow_step": 0.1})
+    from workbench.errors import ParamsError
+
+    with pytest.raises(ParamsError, match=r"^g\.yaml, optimize\.tabulation\.flow_step: unknown setting 'flow_step' "
+                                          r"\(did you mean 'flow_step_mps'\? allowed: mode, flow_step_mps"):
+        TabulationSettings.from_dict({"flow_step": 0.1}, path="g.yaml")
+    with pytest.raises(ParamsError, match=r"optimize\.tabulation: tabulation\.interpolation must be one of"):
+        TabulationSettings.from_dict({"interpolation": "quintic"})
     with pytest.raises(ValueError):
         TabulationSettings(interpolation="quintic")

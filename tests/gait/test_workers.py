@@ -8,7 +8,7 @@ import pytest
 from models import small_lstm
 from test_optimize import TURN, _config
 
-from workbench.errors import ContractError
+from workbench.errors import ParamsError
 from workbench.gait.config import config_from_dict, load_config
 from workbench.gait.objectives import TaskSpec, objectives
 from workbench.gait.optimize import optimize_task
@@ -108,5 +108,5 @@ def test_workers_setting_is_checked_and_recorded():
     assert cfg.workers == "auto" and cfg.record()["workers"] == "auto"
     assert cfg.with_workers("3").workers == 3 and cfg.with_workers(None).workers == "auto"
     for bad in (0, -1, "two", 1.5, True):
-        with pytest.raises(ContractError, match=r"gait\.yaml.*workers must be a positive integer or 'auto'"):
+        with pytest.raises(ParamsError, match=r"^pipelines/gait\.yaml, optimize\.workers: .*integer"):
             config_from_dict({"workers": bad}, "pipelines/gait.yaml")

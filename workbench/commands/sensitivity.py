@@ -55,7 +55,7 @@ def run(args) -> int:
     if not isinstance(task_doc, dict) or "task" not in task_doc:
         raise ContractError("no settings.task (the task the gaits were optimised on)", path=args.gaits)
     try:
-        spec = TaskSpec.from_dict(task_doc["task"], task_doc)
+        spec = TaskSpec.from_dict(task_doc["task"], task_doc, key="settings.task", path=str(args.gaits))
         batch = GaitBatch.from_params([p for _, p in gaits])
     except ValueError as exc:
         raise ContractError(str(exc), path=args.gaits) from None

@@ -67,19 +67,19 @@ class TaskSpec:
             raise ValueError("weights needs three numbers w1, w2, w3")
 
     @classmethod
-    def from_dict(cls, task: str, doc: Mapping[str, Any] | None, weights=None) -> "TaskSpec":
-        """From ``tasks.<task>`` of the parameter file (unknown keys refused)."""
+    def from_dict(cls, task: str, doc: Mapping[str, Any] | None, weights=None, *, key: str | None = None,
+                  path: str | None = None) -> "TaskSpec":
+        """From ``tasks.<task>`` of the parameter file or a gait file's ``settings.task``.
+
+        Built by :func:`workbench.params.build`: unknown keys, wrong types and failed checks are a
+        ParamsError naming ``path`` and ``key``; ``weights`` is the default when the section gives none.
+        """
+        from workbench.params import build
+
         doc = dict(doc or {})
-        unknown = sorted(set(doc) - set(cls.__dataclass_fields__) - {"task"})
-        if unknown:
-            raise ValueError(f"unknown setting(s) {unknown} for task {task!r}")
-        if "weights" in doc:
-            doc["weights"] = tuple(float(w) for w in doc["weights"])
-        elif weights is not None:
-            doc["weights"] = tuple(float(w) for w in weights)
-        doc.pop("task", None)
-        kw = {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v) for k, v in doc.items()}
-        return cls(task=task, **kw)
+        if weights is not None:
+            doc.setdefault("weights", weights)
+        return build(cls, {**doc, "task": task}, key=key or f"optimize.tasks.{task}", path=path)
 
     @property
     def names(self) -> dict[str, str]:

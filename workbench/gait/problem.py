@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Literal, Mapping
 
 import numpy as np
 from pymoo.core.problem import Problem
@@ -21,7 +21,7 @@ from workbench.gait.space import GaitSpace
 from workbench.gait.tabulate import TabulatedLegModel, TabulationSettings
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.robot import RobotParams
-from workbench.hydro.simulator import DEFAULT_DT_S, GaitBatch, Trajectory, simulate, simulation_settings
+from workbench.hydro.simulator import DEFAULT_DT_S, GaitBatch, Trajectory, simulate
 
 
 @dataclass(frozen=True)
@@ -32,19 +32,10 @@ class SimSettings:
     tol_mps: float = 1e-5
     max_iter: int = 40
     relaxation: float = 1.0
-    method: str = "windowed"
+    method: Literal["windowed", "picard"] = "windowed"
     window_s: float = 20.0
     max_window_s: float = 60.0
     anderson: int = 5
-
-    @classmethod
-    def from_dict(cls, doc: Mapping[str, Any] | None) -> "SimSettings":
-        """From the parameter file's ``simulation`` section (unknown keys refused)."""
-        doc = dict(doc or {})
-        unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ValueError(f"unknown simulation setting(s) {unknown}; the duration is the task's cap_s")
-        return cls(**simulation_settings(doc))
 
     def kwargs(self) -> dict:
         """Keyword arguments of :func:`simulate` (all but the duration)."""

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
 
 import numpy as np
 
@@ -64,23 +63,6 @@ class GaitSpace:
                 raise ValueError(f"space.{name}: lower bound {lo} must be below upper bound {hi}")
         if self.frequency_hz[0] <= 0:
             raise ValueError("space.frequency_hz must be positive")
-
-    @classmethod
-    def from_dict(cls, doc: Mapping[str, Any] | None) -> "GaitSpace":
-        """From the parameter file's ``space`` section (unknown keys refused)."""
-        doc = dict(doc or {})
-        unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ValueError(f"unknown space setting(s) {unknown}")
-        kw: dict[str, Any] = {}
-        for k, v in doc.items():
-            if k == "extension":
-                kw[k] = str(v)
-            elif k.endswith(("_deg", "_hz", "_rad")) and isinstance(v, (list, tuple)):
-                kw[k] = (float(v[0]), float(v[1]))
-            else:
-                kw[k] = float(v)
-        return cls(**kw)
 
     @property
     def variables(self) -> tuple[str, ...]:

@@ -91,13 +91,12 @@ class TabulationSettings:
             raise ValueError("tabulation.history_phase_stride must divide phase_samples")
 
     @classmethod
-    def from_dict(cls, doc: Mapping[str, Any] | None) -> "TabulationSettings":
-        """From a parameter-file section (unknown keys refused)."""
-        doc = dict(doc or {})
-        unknown = sorted(set(doc) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ValueError(f"unknown tabulation setting(s) {unknown}")
-        return cls(**doc)
+    def from_dict(cls, doc: Mapping[str, Any] | None, *, key: str = "optimize.tabulation",
+                  path: str | None = None) -> "TabulationSettings":
+        """From a ``tabulation`` section (workbench.params: unknown keys, wrong types, failed checks: ParamsError)."""
+        from workbench.params import build
+
+        return build(cls, doc, key=key, path=path)
 
 
 def _kernel(t: np.ndarray, interpolation: str) -> tuple[np.ndarray, np.ndarray]:
