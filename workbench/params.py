@@ -34,7 +34,7 @@ from workbench.errors import ParamsError, WorkbenchError
 
 T = TypeVar("T")
 
-__all__ = ["build", "load_settings", "read_document", "read_section", "suggest"]
+__all__ = ["build", "load_settings", "read_document", "read_section", "set_dotted", "suggest"]
 
 
 def suggest(key: str, allowed: Sequence[str]) -> str:
@@ -138,6 +138,21 @@ def load_settings(cls: type[T], path: str | Path | None, section: str, *, defaul
     raw, source = read_section(path, section, default=default, required=required)
     raw.update({k: v for k, v in (overrides or {}).items() if v is not None})
     return build(cls, raw, key=section, path=source)
+
+
+def set_dotted(doc: dict, key: str, value: Any, *, section: str, path: str | Path | None = None) -> None:
+    """Set ``doc[a][b][c] = value`` for a dotted ``key`` (``--set a.b.c=...``), making sections as needed.
+
+    Whether the key exists is :func:`build`'s to say (it names the key path and the allowed keys);
+    here only a part that is already set to something other than a section is an error.
+    """
+    node = doc
+    parts = key.strip().split(".")
+    for part in parts[:-1]:
+        node = node.setdefault(part, {})
+        if not isinstance(node, dict):
+            raise ParamsError(f"'{part}' is not a section, cannot set '{key}'", path=path, where=f"{section}.{key}")
+    node[parts[-1]] = value
 
 
 def build(cls: type[T], raw: Mapping[str, Any] | None, *, key: str, path: str | Path | None = None) -> T:

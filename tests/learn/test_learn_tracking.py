@@ -136,7 +136,7 @@ def test_bad_input_is_one_line(project, parquet, capsys, tmp_path):
     interp, _ = parquet
     assert main(["train", "--config", str(CONFIG), "--data", str(interp), "--set", "model.colour=red"]) == 2
     err = capsys.readouterr().err  # the key path and the keys allowed there
-    assert "train.model.colour: unknown setting 'model.colour'" in err and "allowed: variant, hidden_size" in err
+    assert "train.model.colour: unknown setting 'colour'" in err and "allowed: variant, hidden_size" in err
     assert main(["train", "--config", str(CONFIG), "--data", str(tmp_path / "none.parquet"), "--no-mlflow"]) == 2
     assert "processed data file not found" in capsys.readouterr().err
     assert main(["evaluate", "--config", str(CONFIG), "--data", str(interp), "--split", str(tmp_path / "s.json"),

@@ -106,7 +106,7 @@ def _settings(args):
     import yaml
 
     from workbench.errors import ParamsError
-    from workbench.params import read_section
+    from workbench.params import read_section, set_dotted
     from workbench.plan.planner import PlanSettings
 
     doc, source = read_section(args.params, "plan", default="pipelines/plan.yaml")
@@ -114,13 +114,7 @@ def _settings(args):
         key, sep, value = item.partition("=")
         if not sep:
             raise ParamsError(f"--set {item!r} is not key=value", where="plan", hint="e.g. --set ranges.cycles=3")
-        node = doc
-        parts = key.strip().split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-            if not isinstance(node, dict):
-                raise ParamsError(f"--set {item!r}: plan.{part} is not a section", path=source, where=f"plan.{key}")
-        node[parts[-1]] = yaml.safe_load(value)
+        set_dotted(doc, key, yaml.safe_load(value), section="plan", path=source)
     return PlanSettings.from_dict(doc, path=source)
 
 

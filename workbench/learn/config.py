@@ -150,27 +150,18 @@ class LearnSettings:
     def with_overrides(self, overrides: Sequence[str] | Mapping[str, Any]) -> "LearnSettings":
         """A copy with dotted-key overrides applied (``["model.hidden_size=96"]`` or a mapping).
 
-        An unknown key is a ParamsError naming it (``train.model.hiden_size``) and the allowed keys.
+        An unknown key is a ParamsError naming its key path (``train.model.hiden_size``) and the allowed keys.
         """
         import yaml
 
-        from workbench.params import suggest
+        from workbench.params import set_dotted
 
         items = overrides.items() if isinstance(overrides, Mapping) else [_split_override(s) for s in overrides]
         doc = self.to_dict()
         for key, value in items:
             if isinstance(value, str) and not isinstance(overrides, Mapping):
                 value = yaml.safe_load(value)
-            node = doc
-            parts = key.split(".")
-            for i, p in enumerate(parts):
-                if not isinstance(node, dict) or p not in node or (i < len(parts) - 1 and not isinstance(node[p], dict)):
-                    allowed = [str(k) for k in node] if isinstance(node, dict) else []
-                    raise ParamsError(f"unknown setting '{key}'", where="train." + ".".join(parts[:i + 1]),
-                                      hint=suggest(p, allowed))
-                if i < len(parts) - 1:
-                    node = node[p]
-            node[parts[-1]] = value
+            set_dotted(doc, key, value, section="train")
         return config_from_dict(doc)
 
 
