@@ -346,3 +346,18 @@ def test_callers_get_their_own_copy_of_a_cached_file(tmp_path):
     raw["inner"]["taps"].append(99)  # e.g. a --set override applied in place
     load_params(f)["demo"]["inner"]["gain"] = 7.0
     assert read_section(f, "demo")[0] == {"inner": {"taps": [1, 2]}}
+
+
+def test_set_dotted_makes_sections_and_build_names_a_misspelt_key():
+    from workbench.params import set_dotted
+
+    doc = {"inner": {"gain": 2.0}, "label": None}
+    set_dotted(doc, "inner.taps", [4, 5], section="demo")
+    set_dotted(doc, "rate_hz", 20, section="demo")
+    s = build(DemoSettings, doc, key="demo", path="d.yaml")
+    assert s.inner == Inner(gain=2.0, taps=(4, 5)) and s.rate_hz == 20.0
+    set_dotted(doc, "inner.gian", 1.0, section="demo")
+    with pytest.raises(ParamsError, match=r"^d\.yaml, demo\.inner\.gian: unknown setting 'gian' \(did you mean 'gain'"):
+        build(DemoSettings, doc, key="demo", path="d.yaml")
+    with pytest.raises(ParamsError, match=r"^d\.yaml, demo\.label\.x: 'label' is not a section"):
+        set_dotted(doc, "label.x", 1, section="demo", path="d.yaml")
