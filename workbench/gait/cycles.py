@@ -24,6 +24,7 @@ from typing import Callable
 
 import numpy as np
 
+from workbench.errors import SettingError
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import JointSinusoid, LegMotion
 
@@ -170,9 +171,9 @@ class CycleSource:
         self.history_stride = int(history_phase_stride)
         self.history_step = float(history_step_mps)
         if self.history_order not in (0, 1, 2):
-            raise ValueError("history_order must be 0, 1 or 2")
+            raise SettingError("history_order must be 0, 1 or 2")
         if self.history_order and (self.history_stride < 1 or self.phase_samples % self.history_stride):
-            raise ValueError("history_phase_stride must divide phase_samples")
+            raise SettingError("history_phase_stride must divide phase_samples")
         #: model calls, rows (pairs) and ticks (or windows) predicted so far
         self.calls = 0
         self.pairs = 0

@@ -27,6 +27,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from workbench.errors import SettingError
 from workbench.hydro.simulator import Trajectory
 
 TASKS = ("straight", "turn")
@@ -54,17 +55,17 @@ class TaskSpec:
 
     def __post_init__(self):
         if self.task not in TASKS:
-            raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
+            raise SettingError(f"task must be one of {TASKS}, got {self.task!r}")
         if self.turn_direction not in TURN_DIRECTIONS:
-            raise ValueError(f"turn_direction must be one of {TURN_DIRECTIONS}, got {self.turn_direction!r}")
+            raise SettingError(f"turn_direction must be one of {TURN_DIRECTIONS}, got {self.turn_direction!r}")
         if self.angle_unit not in ANGLE_UNITS:
-            raise ValueError(f"angle_unit must be one of {ANGLE_UNITS}, got {self.angle_unit!r}")
+            raise SettingError(f"angle_unit must be one of {ANGLE_UNITS}, got {self.angle_unit!r}")
         if self.cap_s <= 0 or (self.task == "straight" and self.finish_distance_m <= 0):
-            raise ValueError("cap_s and finish_distance_m must be positive")
+            raise SettingError("cap_s and finish_distance_m must be positive")
         if self.task == "turn" and self.target_yaw_deg <= 0:
-            raise ValueError("a turn's target_yaw_deg must be positive (the amount of turning)")
+            raise SettingError("a turn's target_yaw_deg must be positive (the amount of turning)")
         if len(self.weights) != 3:
-            raise ValueError("weights needs three numbers w1, w2, w3")
+            raise SettingError("weights needs three numbers w1, w2, w3")
 
     @classmethod
     def from_dict(cls, task: str, doc: Mapping[str, Any] | None, weights=None, *, key: str | None = None,

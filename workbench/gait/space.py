@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from workbench.errors import SettingError
 from workbench.hydro.robot import LEG_NAMES
 from workbench.hydro.simulator import PHI_RAD, THETA_H_MAX_DEG, THETA_K_MIN_DEG, GaitBatch
 
@@ -56,13 +57,13 @@ class GaitSpace:
 
     def __post_init__(self):
         if self.extension not in EXTENSIONS:
-            raise ValueError(f"space.extension must be one of {sorted(EXTENSIONS)}, got {self.extension!r}")
+            raise SettingError(f"space.extension must be one of {sorted(EXTENSIONS)}, got {self.extension!r}")
         for name in ("theta_h_min_deg", "theta_k_max_deg", "frequency_hz", "alpha_rad"):
             lo, hi = getattr(self, name)
             if not lo < hi:
-                raise ValueError(f"space.{name}: lower bound {lo} must be below upper bound {hi}")
+                raise SettingError(f"space.{name}: lower bound {lo} must be below upper bound {hi}")
         if self.frequency_hz[0] <= 0:
-            raise ValueError("space.frequency_hz must be positive")
+            raise SettingError("space.frequency_hz must be positive")
 
     @property
     def variables(self) -> tuple[str, ...]:
@@ -106,13 +107,13 @@ class GaitSpace:
             for name in ("theta_h_min_deg", "theta_k_max_deg"):
                 arr = getattr(gaits, name)
                 if not (np.all(arr[:, 0] == arr[:, 2]) and np.all(arr[:, 1] == arr[:, 3])):
-                    raise ValueError(f"{name} differs between legs of one side; per_side_range has one per side")
+                    raise SettingError(f"{name} differs between legs of one side; per_side_range has one per side")
                 cols += [arr[:, 0], arr[:, 1]]
             return np.column_stack(cols + [gaits.frequency_hz, gaits.alpha_rad])
         for name in ("theta_h_min_deg", "theta_k_max_deg"):
             arr = getattr(gaits, name)
             if not np.all(arr == arr[:, :1]):
-                raise ValueError(f"{name} differs between legs; the decision vector has one value for all legs")
+                raise SettingError(f"{name} differs between legs; the decision vector has one value for all legs")
         return np.column_stack([gaits.theta_h_min_deg[:, 0], gaits.theta_k_max_deg[:, 0], gaits.frequency_hz,
                                 gaits.alpha_rad])
 

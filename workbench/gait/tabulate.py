@@ -34,6 +34,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from workbench.errors import SettingError
 from workbench.gait.cycles import CycleSource, Shapes
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import LegMotion
@@ -78,17 +79,17 @@ class TabulationSettings:
 
     def __post_init__(self):
         if self.mode not in TABULATION_MODES:
-            raise ValueError(f"tabulation.mode must be one of {TABULATION_MODES}, got {self.mode!r}")
+            raise SettingError(f"tabulation.mode must be one of {TABULATION_MODES}, got {self.mode!r}")
         if self.interpolation not in INTERPOLATIONS:
-            raise ValueError(f"tabulation.interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}")
+            raise SettingError(f"tabulation.interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}")
         if (self.flow_step_mps <= 0 or self.phase_samples < 4 or self.warmup_s < 0 or self.fine_flow_factor < 1
                 or self.fine_phase_samples < 1 or self.history_step_mps <= 0 or self.startup_tol_mps < 0):
-            raise ValueError("tabulation needs flow_step_mps > 0, phase_samples >= 4, warmup_s >= 0, "
+            raise SettingError("tabulation needs flow_step_mps > 0, phase_samples >= 4, warmup_s >= 0, "
                              "history_step_mps > 0, startup_tol_mps >= 0 and positive fine grid sizes")
         if self.history_order not in (0, 1, 2):
-            raise ValueError("tabulation.history_order must be 0, 1 or 2")
+            raise SettingError("tabulation.history_order must be 0, 1 or 2")
         if self.history_phase_stride < 1 or self.phase_samples % self.history_phase_stride:
-            raise ValueError("tabulation.history_phase_stride must divide phase_samples")
+            raise SettingError("tabulation.history_phase_stride must divide phase_samples")
 
     @classmethod
     def from_dict(cls, doc: Mapping[str, Any] | None, *, key: str = "optimize.tabulation",

@@ -24,7 +24,7 @@ from typing import Callable, Literal, Mapping, Sequence
 import numpy as np
 
 from workbench.contract.columns import WRENCH_CHANNELS
-from workbench.errors import ModelError
+from workbench.errors import ModelError, SettingError
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import JointSinusoid, LegMotion
 from workbench.hydro.robot import LEG_NAMES, RobotParams
@@ -69,7 +69,7 @@ class GaitBatch:
         freq = np.ascontiguousarray(np.broadcast_to(np.asarray(frequency_hz, float).reshape(-1), (b,)))
         gaits = cls(legs(theta_h_min_deg), legs(theta_k_max_deg), freq, legs(alpha), **fixed)
         if np.any(gaits.frequency_hz <= 0) or not all(np.all(np.isfinite(a)) for a in gaits._arrays()):
-            raise ValueError("gait parameters must be finite with positive frequency")
+            raise SettingError("gait parameters must be finite with positive frequency")
         return gaits
 
     @classmethod
@@ -81,7 +81,7 @@ class GaitBatch:
                 [p["frequency_hz"] for p in params],
                 [p["alpha_rad"] if np.ndim(p["alpha_rad"]) else [p["alpha_rad"]] * 4 for p in params], **fixed)
         except KeyError as exc:
-            raise ValueError(f"gait parameters lack {exc}") from None
+            raise SettingError(f"gait parameters lack {exc}") from None
 
     def _arrays(self):
         return (self.theta_h_min_deg, self.theta_k_max_deg, self.frequency_hz, self.alpha_rad)
@@ -626,13 +626,13 @@ def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, 
     ``on_iteration(calls, change_per_gait)`` reports progress.
     """
     if duration_s <= 0 or dt_s <= 0:
-        raise ValueError("duration_s and dt_s must be positive")
+        raise SettingError("duration_s and dt_s must be positive")
     if not 0 < relaxation <= 1:
-        raise ValueError("relaxation must be in (0, 1]")
+        raise SettingError("relaxation must be in (0, 1]")
     if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        raise SettingError(f"method must be one of {METHODS}, got {method!r}")
     if window_s <= 0 or max_window_s <= 0 or max_iter < 1:
-        raise ValueError("window_s and max_window_s must be positive and max_iter at least 1")
+        raise SettingError("window_s and max_window_s must be positive and max_iter at least 1")
     b = len(gaits)
     n_ticks = int(round(duration_s / dt_s)) + 1
     t = np.arange(n_ticks) * dt_s
@@ -642,7 +642,7 @@ def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, 
     if guessed:
         initial_flow = np.asarray(initial_flow, float)
         if initial_flow.shape != flow.shape or not np.all(np.isfinite(initial_flow)):
-            raise ValueError(f"initial_flow must be finite with shape {flow.shape}, got {initial_flow.shape}")
+            raise SettingError(f"initial_flow must be finite with shape {flow.shape}, got {initial_flow.shape}")
         flow[:] = initial_flow
         flow[:, :, 0] = 0.0                            # the swim starts at rest
     failed = np.zeros(b, bool)
