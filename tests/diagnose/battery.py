@@ -90,6 +90,15 @@ COMMAND_SERVOS = [
     Case("servo_cmd_lag_25ms", lambda: [P.servo(lag_s=0.025)], {"servo_lag": {"tau_s": 0.025}}),
 ]
 
+#: the ends of issue 13's tone range (1-4 Hz at 3-10 % of the flow speed). Not in the slow CI test
+#: with a reference (its time); ``all_cases(with_reference=False)`` and ``case`` find them
+TONE_RANGE = [
+    Case("flow_tone_1Hz_3pc", lambda: [P.flow_tone(1.0, 0.03, seed=1)],
+         {"flow_unsteadiness": {"tone_hz": 1.0, "tone_fraction": 0.03}}),
+    Case("flow_tone_4Hz_10pc", lambda: [P.flow_tone(4.0, 0.10, seed=2)],
+         {"flow_unsteadiness": {"tone_hz": 4.0, "tone_fraction": 0.10}}),
+]
+
 PAIRS = [
     ("servo_dead_60ms", "drift_fz_1.5mN_per_s"),
     ("crosstalk_fz_from_fy_3pc", "mount_mode_4.5Hz"),
@@ -99,7 +108,7 @@ PAIRS = [
 
 def case(name: str) -> Case:
     """A single case by name."""
-    return next(c for c in SINGLES + COMMAND_SERVOS if c.name == name)
+    return next(c for c in SINGLES + COMMAND_SERVOS + TONE_RANGE if c.name == name)
 
 
 def pair(a: str, b: str) -> Case:
@@ -111,7 +120,7 @@ def pair(a: str, b: str) -> Case:
 
 def all_cases(with_reference: bool = True) -> list[Case]:
     """Singles, then pairs (command-log servos only without a reference)."""
-    return SINGLES + ([] if with_reference else COMMAND_SERVOS) + [pair(a, b) for a, b in PAIRS]
+    return SINGLES + ([] if with_reference else COMMAND_SERVOS + TONE_RANGE) + [pair(a, b) for a, b in PAIRS]
 
 
 # ------------------------------------------------------------------------------ running

@@ -243,13 +243,61 @@ class FlowUnsteadiness(Effect):
 
     location_params = ("tone_hz", "rms_fraction")
 
+    def __init__(self, sensitivity: str = "measured", stroke_free: str | bool = False):
+        """``sensitivity``: ``measured`` (across the campaign's flow speeds, else the model's) or ``model``.
+
+        ``stroke_free``: project each run's stroke-locked part out of the tone's columns (and leave
+        out runs where the tone sits on a gait harmonic); ``auto``: when no reference campaign has
+        taken the base model's stroke-locked misfit out. Off by default: on the rich tunnel without
+        a reference it removed the tone's line but halved the held-out t statistic (docs/diagnose.md).
+        """
+        from workbench.errors import ModelError
+
+        if sensitivity not in ("measured", "model"):
+            raise ModelError(f"flow_unsteadiness: sensitivity must be 'measured' or 'model', not {sensitivity!r}")
+        if stroke_free not in ("auto", True, False):
+            raise ModelError(f"flow_unsteadiness: stroke_free must be auto, true or false, not {stroke_free!r}")
+        self.sensitivity = sensitivity
+        self.stroke_free = stroke_free
+        self._measured: dict = {}
+        self._measured_for = None
+
+    def options(self) -> dict:  # noqa: D102
+        return {"sensitivity": self.sensitivity, "stroke_free": self.stroke_free}
+
+    def measure(self, problem) -> None:
+        """The campaign's measured flow sensitivity (``flowsens.measured_sensitivity``), once per campaign."""
+        if self.sensitivity != "measured" or self._measured_for is problem.campaign:
+            return
+        from workbench.diagnose.flowsens import measured_sensitivity
+
+        self._measured = measured_sensitivity(problem.campaign.sets)
+        self._measured_for = problem.campaign
+
     def gain(self, ctx: Context) -> np.ndarray:
-        """The flow sensitivity g = U dM/dU by a centred difference (B, T, 6)."""
+        """The flow sensitivity g = U dF/dU (B, T, 6): measured across the campaign's flow speeds where it can be.
+
+        Runs of a parameter set run at fewer than three speeds (and motions outside the diagnosed
+        campaign) take the model's ``U dM/dU`` by a centred difference.
+        """
         h = self.step
-        return (ctx.wrench_at_flow(1 + h) - ctx.wrench_at_flow(1 - h)) / (2 * h)
+        g = (ctx.wrench_at_flow(1 + h) - ctx.wrench_at_flow(1 - h)) / (2 * h)
+        ids = getattr(ctx.rs, "run_ids", None)
+        if not self._measured or ids is None:
+            return g
+        g = np.array(g, float)
+        for i, rid in enumerate(ids):
+            hit = self._measured.get(rid)
+            if hit is None or abs(float(ctx.rs.flow[i])) < 1e-9:
+                continue
+            t, gm = hit
+            for c in range(6):
+                g[i, :, c] = np.interp(ctx.time_s[i], t, gm[:, c])
+        return g
 
     def run_gains(self, problem, config) -> list[np.ndarray]:
-        """Per run (index order, valid ticks): g = U dW/dU of the model on ``config``'s motion."""
+        """Per run (index order, valid ticks): g = U dF/dU (measured, else the model's on ``config``'s motion)."""
+        self.measure(problem)
         out = {}
         for rs in problem.campaign.sets:
             ctx = problem.context(rs, config)
@@ -268,6 +316,7 @@ class FlowUnsteadiness(Effect):
 
     def proposals(self, probe, config, fit) -> list:
         """Lines carried by the flow sensitivity first, then the residual's other narrowband lines."""
+        self.measure(probe.problem)
         rr = probe.residuals(config, fit)
         carried = flow_tone_peaks(rr, self.run_gains(probe.problem, config), probe.problem.weights,
                                   probe.settings.evidence, probe.cutoff)
@@ -319,12 +368,25 @@ class FlowUnsteadiness(Effect):
     def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
         g = self.gain(ctx)
         ph = 2 * np.pi * nl["tone_hz"] * ctx.time_s
-        return Terms(local_names=["tone_sin", "tone_cos"],
-                     local=[g * np.sin(ph)[..., None], g * np.cos(ph)[..., None]])
+        cols = [g * np.sin(ph)[..., None], g * np.cos(ph)[..., None]]
+        rs = ctx.rs
+        free = self.stroke_free if self.stroke_free != "auto" else getattr(rs, "offset", None) is None
+        if free and all(hasattr(rs, k) for k in ("fit", "freq")):
+            from workbench.diagnose.flowsens import on_harmonic, without_stroke
+
+            freq = np.asarray(rs.freq, float)
+            cols = [without_stroke(c, ctx.time_s, rs.fit, freq) for c in cols]
+            # runs where the tone sits on a gait harmonic cannot tell it from the stroke-locked
+            # misfit: they carry no tone. The null variants (off-peak frequencies) leave out the
+            # same runs (``mask_hz``), so that the nuisance fit's null is judged on equal terms.
+            dur = np.asarray(rs.fit, bool).sum(axis=1) * ctx.dt_s
+            drop = on_harmonic(float(nl.get("mask_hz", nl["tone_hz"])), freq, dur)
+            cols = [np.where(drop[:, None, None], 0.0, c) for c in cols]
+        return Terms(local_names=["tone_sin", "tone_cos"], local=cols)
 
     def null_variants(self, nl: dict) -> list[dict]:  # noqa: D102
         f = nl["tone_hz"]
-        return [{"tone_hz": f + d} for d in (-0.35, 0.35) if f + d > 0.05]
+        return [{"tone_hz": f + d, "mask_hz": f} for d in (-0.35, 0.35) if f + d > 0.05]
 
     def canonical_params(self, coefs, nl, cov, local=None):  # noqa: D102
         params = {"tone_hz": nl["tone_hz"], "tone_fraction": float("nan"), "rms_fraction": None}
