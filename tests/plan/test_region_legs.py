@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
 
 from workbench.commands.plan_campaign import own_legs
 from workbench.plan.region import operating_region
@@ -32,7 +31,6 @@ class StrongLegs:
         return self.k * np.asarray(self.ef.wrench(motion))
 
 
-@pytest.mark.slow  # 8 s on the loaded 2-core machine (four short swims)
 def test_own_legs_fall_back_to_ef_with_a_note_and_other_legs_change_the_flow(tmp_path):
     kw = dict(robot_yaml="pipelines/robot.yaml", duration_s=6.0, points_per_cycle=8)
     missing = _file(tmp_path, "a", str(tmp_path / "no-such-model"))
