@@ -83,6 +83,30 @@ def test_split_is_by_parameter_set_seeded_and_recorded():
     assert rec["counts"] == counts and all(s["runs"] for s in rec["sets"])
 
 
+def test_stratified_split_gives_val_and_test_every_frequency():
+    # 3 frequencies x 16 sets: a plain draw can leave a frequency out of val (5 sets); a stratified one
+    # gives each frequency its share of val (1-2) and test (3-4) for every seed
+    f = make_frame(theta_h_min=(10.0, -10.0, -30.0, -50.0), theta_k_max=(-20.0, -40.0, -60.0, -80.0),
+                   freqs=(0.3, 0.45, 0.6), speeds=(0.1,), cycles=1.0)
+    table = table_from_frame(f)
+    plain_misses = 0
+    for seed in range(12):
+        sp = split_parameter_sets(table, (0.7, 0.1, 0.2), seed=seed, stratify=("frequency_hz",))
+        assert sp.counts() == {"train": 33, "val": 5, "test": 10}
+        for name, lo, hi in (("val", 1, 2), ("test", 3, 4)):
+            per = [sum(1 for k in sp.sets(name) if sp.params[k]["frequency_hz"] == fr) for fr in (0.3, 0.45, 0.6)]
+            assert all(lo <= n <= hi for n in per), (seed, name, per)
+        plain = split_parameter_sets(table, (0.7, 0.1, 0.2), seed=seed)
+        plain_misses += len({plain.params[k]["frequency_hz"] for k in plain.sets("val")}) < 3
+        assert split_parameter_sets(table, (0.7, 0.1, 0.2), seed=seed, stratify=("frequency_hz",)).assignment \
+            == sp.assignment
+        rec = json.loads(json.dumps(sp.to_dict()))
+        assert rec["stratify"] == ["frequency_hz"] and ParameterSplit.from_dict(rec).stratify == ("frequency_hz",)
+    assert plain_misses > 0  # the case the option exists for happens with plain draws
+    with pytest.raises(ContractError, match="stratify names unknown parameters"):
+        split_parameter_sets(table, stratify=("speed_of_light",))
+
+
 def test_pin_test_sends_the_figure_sets_to_test(frame):
     table = table_from_frame(frame)
     pins = ({"theta_h_min_deg": 10.0, "theta_k_max_deg": -20.0}, {"theta_h_min_deg": -50.0, "theta_k_max_deg": -60.0})

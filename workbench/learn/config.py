@@ -35,6 +35,8 @@ class SplitSettings:
     seed: int = 0
     #: partial parameter specs (e.g. the paper's figure sets); one matching set of each goes to test
     pin_test: tuple[Mapping[str, float], ...] = ()
+    #: parameters whose values val and test each take in proportion (e.g. ("frequency_hz",)); () plain draw
+    stratify: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,8 @@ def prepare_data(table: RunTable, cfg: DataCfg, *, need_ef: bool = False,
                  split: ParameterSplit | None = None) -> PreparedData:
     """Split by parameter set (or reuse ``split``), fit the normalisation on training runs, normalise once."""
     if split is None:
-        split = split_parameter_sets(table, cfg.split.fractions, cfg.split.seed, cfg.split.pin_test)
+        split = split_parameter_sets(table, cfg.split.fractions, cfg.split.seed, cfg.split.pin_test,
+                                     stratify=cfg.split.stratify)
     train_runs = split.runs(table, "train", measured_only=False)
     if len(train_runs) == 0:
         raise DataError("no training runs after the split")

@@ -34,6 +34,8 @@ class ParameterSplit:
     #: set key -> parameter values (contract names)
     params: Mapping[tuple, Mapping[str, float]]
     pin_test: tuple[Mapping[str, float], ...] = field(default=())
+    #: parameters whose values form strata; val and test take each stratum's share (empty: plain draw)
+    stratify: tuple[str, ...] = field(default=())
 
     def split_of(self, params: Mapping[str, float]) -> str | None:
         """The split of a parameter set (None when the set is unknown to this split)."""
@@ -71,7 +73,8 @@ class ParameterSplit:
                 for k in sorted(self.assignment)]
         return {"schema": SCHEMA, "unit": "motion-parameter set", "seed": self.seed,
                 "fractions": list(self.fractions), "param_columns": list(self.param_columns),
-                "pin_test": [dict(p) for p in self.pin_test], "counts": self.counts(), "sets": sets}
+                "pin_test": [dict(p) for p in self.pin_test], "stratify": list(self.stratify),
+                "counts": self.counts(), "sets": sets}
 
     @classmethod
     def from_dict(cls, d: Mapping, path: str | None = None) -> "ParameterSplit":
@@ -87,20 +90,45 @@ class ParameterSplit:
             assignment[k] = s["split"]
             params[k] = {c: float(s["params"][c]) for c in cols}
         return cls(int(d["seed"]), tuple(d["fractions"]), cols, assignment, params,
-                   tuple(d.get("pin_test", ())))
+                   tuple(d.get("pin_test", ())), tuple(d.get("stratify", ())))
 
 
 def _matches(params: Mapping[str, float], spec: Mapping[str, float]) -> bool:
     return all(abs(float(params[k]) - float(v)) < 10 ** -PARAM_DECIMALS * 10 for k, v in spec.items())
 
 
+def _stratified_order(keys: list[tuple], params: Mapping[tuple, Mapping[str, float]],
+                      stratify: Sequence[str], rng: np.random.Generator) -> list[tuple]:
+    """The sets in an order whose every prefix holds each stratum in proportion to its size.
+
+    Each stratum (one combination of the ``stratify`` parameters' values) is shuffled; its i-th set
+    of m gets the position (i + u) / m with one random offset u per stratum (systematic sampling), and
+    the sets are sorted by position. The test sets (the order's head) and the validation sets (next)
+    thus take every stratum's share: a validation split without, say, the highest frequency would
+    calibrate intervals on data unlike part of the test split.
+    """
+    strata: dict[tuple, list[tuple]] = {}
+    for k in keys:
+        strata.setdefault(tuple(round(float(params[k][c]), PARAM_DECIMALS) for c in stratify), []).append(k)
+    placed = []
+    for label in sorted(strata):
+        members = strata[label]
+        members = [members[i] for i in rng.permutation(len(members))]
+        u = float(rng.random())
+        placed += [((i + u) / len(members), float(rng.random()), k) for i, k in enumerate(members)]
+    placed.sort(key=lambda t: (t[0], t[1]))
+    return [k for _, _, k in placed]
+
+
 def split_parameter_sets(table: RunTable, fractions: Sequence[float] = (0.7, 0.1, 0.2), seed: int = 0,
-                         pin_test: Sequence[Mapping[str, float]] = ()) -> ParameterSplit:
+                         pin_test: Sequence[Mapping[str, float]] = (),
+                         stratify: Sequence[str] = ()) -> ParameterSplit:
     """Assign every parameter set of the table to train, val or test (seeded, reproducible).
 
     Each spec in ``pin_test`` (e.g. ``{"theta_h_min_deg": 10, "theta_k_max_deg": -20}``, the
     paper's figure sets) sends one matching set (the seed picks which) to test, so the figures
-    can show held-out sets; the pinned sets count towards the test share.
+    can show held-out sets; the pinned sets count towards the test share. ``stratify`` (e.g.
+    ``["frequency_hz"]``) draws val and test in proportion from every value of those parameters.
     """
     cols = table.param_columns
     params: dict[tuple, dict] = {}
@@ -121,14 +149,24 @@ def split_parameter_sets(table: RunTable, fractions: Sequence[float] = (0.7, 0.1
         cand = [k for k in keys if _matches(params[k], spec) and k not in pinned]
         if cand:
             pinned.append(cand[int(rng.integers(len(cand)))])
-    rest = [keys[i] for i in rng.permutation(n) if keys[i] not in pinned]
+    unknown = [c for c in stratify if c not in cols]
+    if unknown:
+        raise ContractError(f"data.split.stratify names unknown parameters {unknown} (parameters: {list(cols)})")
     n_test = max(int(round(fractions[2] * n)), len(pinned), 1 if fractions[2] > 0 else 0)
     n_val = max(int(round(fractions[1] * n)), 1 if fractions[1] > 0 else 0)
     n_train = n - n_test - n_val
     if n_train < 1:
         raise DataError(f"{n} parameter sets are too few for fractions {list(fractions)}")
     assignment = {k: "test" for k in pinned}
-    for i, k in enumerate(rest):
-        assignment[k] = "train" if i < n_train else ("val" if i < n_train + n_val else "test")
+    if stratify:
+        # test first (the pinned sets already hold part of it), then val, then train
+        order = [k for k in _stratified_order(keys, params, stratify, rng) if k not in pinned]
+        for i, k in enumerate(order):
+            assignment[k] = "test" if i < n_test - len(pinned) else ("val" if i < n_test - len(pinned) + n_val
+                                                                     else "train")
+    else:
+        rest = [keys[i] for i in rng.permutation(n) if keys[i] not in pinned]
+        for i, k in enumerate(rest):
+            assignment[k] = "train" if i < n_train else ("val" if i < n_train + n_val else "test")
     return ParameterSplit(seed, tuple(float(f) for f in fractions), cols, assignment, params,
-                          tuple(dict(p) for p in pin_test))
+                          tuple(dict(p) for p in pin_test), tuple(stratify))
