@@ -92,6 +92,45 @@ def read_document(path: str | Path) -> Any:
     return {} if doc is None else copy.deepcopy(doc)  # the parsed file is cached: callers get their own copy
 
 
+#: a section's key naming another parameter file whose same section it changes (``extends: gait.yaml``)
+EXTENDS = "extends"
+
+
+def _merged(base: Mapping, changes: Mapping) -> dict:
+    """``base`` with ``changes`` on top: nested mappings merged key by key, any other value replaced."""
+    out = dict(base)
+    for k, v in changes.items():
+        out[k] = _merged(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) else v
+    return out
+
+
+def _extended(node: Mapping, section: str, path: Path, depth: int = 0) -> dict:
+    """A section with ``extends: FILE``: FILE's same section with this one's other keys on top.
+
+    FILE is taken relative to this file's folder (then the project root); it may extend another
+    file in turn (up to 8 deep). A missing file or section is a ParamsError naming this file.
+    """
+    from workbench.project import project_root
+
+    ref = node[EXTENDS]
+    if not isinstance(ref, str) or not ref or depth > 8:
+        raise ParamsError("must name another parameter file (a path)" if depth <= 8 else "files extend each other "
+                          "in a loop", path=path, where=f"{section}.{EXTENDS}")
+    base_path = path.parent / ref
+    if not base_path.is_file():
+        base_path = project_root() / ref
+    if not base_path.is_file():
+        raise ParamsError(f"the file it extends, {ref}, does not exist", path=path, where=f"{section}.{EXTENDS}")
+    st = base_path.stat()
+    base_doc = _load_yaml(str(base_path), st.st_mtime, st.st_size) or {}
+    base = base_doc.get(section) if isinstance(base_doc, Mapping) else None
+    if not isinstance(base, Mapping):
+        raise ParamsError(f"{ref} has no section '{section}' to extend", path=path, where=f"{section}.{EXTENDS}")
+    if EXTENDS in base:
+        base = _extended(base, section, base_path, depth + 1)
+    return _merged(base, {k: v for k, v in node.items() if k != EXTENDS})
+
+
 def read_section(path: str | Path | None, section: str, *, default: str | Path | None = None,
                  required: bool = True) -> tuple[dict, str | None]:
     """One section of a parameter file as a plain dict, and the file it came from (None: built-in defaults).
@@ -100,7 +139,9 @@ def read_section(path: str | Path | None, section: str, *, default: str | Path |
     ``default`` and that file does not exist, the section is empty (built-in defaults apply); an
     explicit file that does not exist is an error. ``section`` may be dotted (``optimize.nsga2``).
     A file without the section is an error when ``required`` (the file was probably meant for
-    another verb), else an empty section; a section written as ``null`` is empty.
+    another verb), else an empty section; a section written as ``null`` is empty. A top-level
+    section with ``extends: FILE`` is FILE's same section with this one's keys on top (nested
+    mappings merged): a variant file holds only what it changes (pipelines/gait_sides.yaml).
     """
     p = _resolve_file(path, default)
     if p is None:
@@ -109,6 +150,9 @@ def read_section(path: str | Path | None, section: str, *, default: str | Path |
     doc = _load_yaml(str(p), st.st_mtime, st.st_size)
     if doc is None:
         doc = {}
+    top = section.split(".")[0]
+    if isinstance(doc, Mapping) and isinstance(doc.get(top), Mapping) and EXTENDS in doc[top]:
+        doc = {**doc, top: _extended(doc[top], top, p)}
     node: Any = doc
     walked: list[str] = []
     for part in section.split("."):

@@ -23,7 +23,9 @@ def model_display_label(model: str, labels: Mapping[str, str] | None = None) -> 
     """The name a gait file's model gets in trials.toml and the scores.
 
     ``labels`` (the ``model_labels`` setting) first, then :data:`DEFAULT_LABELS`, then
-    ``lstmNN`` -> ``FED-LSTM-NN`` (the FED-LSTM on NN-tick windows), else the name upper-cased.
+    ``lstmNN`` -> ``FED-LSTM-NN`` (the FED-LSTM on NN-tick windows), then ``NAME-sides`` (gaits of
+    the per_side_range gait space, pipelines/gait_sides.yaml) -> NAME's label + ``-sides``, else the
+    name upper-cased.
     """
     import re
 
@@ -31,6 +33,8 @@ def model_display_label(model: str, labels: Mapping[str, str] | None = None) -> 
         return str(labels[model])
     if model in DEFAULT_LABELS:
         return DEFAULT_LABELS[model]
+    if model.endswith("-sides") and len(model) > 6:
+        return model_display_label(model[:-6], labels) + "-sides"
     m = re.fullmatch(r"lstm[-_]?(\d+)", model)
     return f"FED-LSTM-{m.group(1)}" if m else model.upper()
 
