@@ -27,6 +27,7 @@ from workbench.contract.columns import (
     TUNNEL_OPTIONAL_DEFAULTS,
 )
 from workbench.contract.limits import DEFAULT_LIMITS, Limits, manifest_faults
+from workbench.contract.unique import first_of_each_id
 from workbench.errors import ContractError
 
 _RUN_FILE_KEYS = ("loadcell", "motion", "carriage", "mcap")
@@ -347,18 +348,8 @@ def _parse_motion(mt: Any, col: _Collector) -> MotionSpec:
 
 def _parse_runs(raw_runs: list, root: Path, facility: str, col: _Collector) -> list[RunSpec]:
     """The usable runs, in the file's order; a repeated id is an error and only its first run is kept."""
-    runs: list[RunSpec] = []
-    seen: set[str] = set()
-    for i, t in enumerate(raw_runs):
-        r = _parse_run(i, t, root, facility, col)
-        if r is None:
-            continue
-        if r.id in seen:
-            col.add("duplicate run id", run=r.id)
-            continue
-        seen.add(r.id)
-        runs.append(r)
-    return runs
+    return first_of_each_id(((i, _parse_run(i, t, root, facility, col)) for i, t in enumerate(raw_runs)),
+                            lambda i, r: col.add("duplicate run id", run=r.id))
 
 
 def run_errors(errors: list[ContractError]) -> dict[str | None, list[ContractError]]:

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from workbench.contract.columns import TRIALS_SCHEMA
+from workbench.contract.unique import first_of_each_id
 from workbench.errors import ContractError
 
 #: Marker colour names the contract allows.
@@ -307,17 +308,9 @@ def check_trials(root: str | Path) -> tuple[TrialsFolder | None, list[ContractEr
     if not isinstance(raw, list) or not raw:
         col.add("no [[trials]] entries", where="[[trials]]")
         raw = []
-    trials: list[TrialSpec] = []
-    seen: set[str] = set()
-    for i, t in enumerate(raw):
-        spec = _parse_trial(i, t, root, camera, col)
-        if spec is None:
-            continue
-        if spec.id in seen:
-            col.add(f"duplicate trial id {spec.id!r}", where=f"[[trials]] #{i + 1}")
-            continue
-        seen.add(spec.id)
-        trials.append(spec)
+    trials: list[TrialSpec] = first_of_each_id(
+        ((i, _parse_trial(i, t, root, camera, col)) for i, t in enumerate(raw)),
+        lambda i, spec: col.add(f"duplicate trial id {spec.id!r}", where=f"[[trials]] #{i + 1}"))
     if col.folder:
         folder = None if camera is None else TrialsFolder(root, fid, tank, camera, robot, tuple(trials))
         return folder, col.folder, col.per_trial
