@@ -135,6 +135,7 @@ def _regions(settings):
 def run_seed(seed: int, args, settings, region, truth, ef_region, ef_truth) -> dict:  # noqa: C901 - one protocol
     import shutil
 
+    from workbench.commands.train_ensemble import write_ensemble
     from workbench.ingest import ingest_to_file
     from workbench.learn.config import load_config
     from workbench.learn.datamodule import prepare_data
@@ -181,8 +182,8 @@ def run_seed(seed: int, args, settings, region, truth, ef_region, ef_truth) -> d
     def fit(paths: list[Path], name: str, first: ParameterSplit):
         cfg = base_cfg.with_overrides({"data.paths": [str(p) for p in paths]})
         t0 = time.perf_counter()
-        rec = train_ensemble(cfg, work / name, members=args.members, first_seed=first_seed,
-                             split=split_for(paths, first))
+        rec, files = train_ensemble(cfg, members=args.members, first_seed=first_seed, split=split_for(paths, first))
+        write_ensemble(work / name, files)
         return load_ensemble(work / name), rec, time.perf_counter() - t0
 
     p0 = measure(_initial_grid(), "initial", 1000 * seed)

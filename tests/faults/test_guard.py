@@ -2,7 +2,7 @@
 
 Folders and files here are written by the tests themselves (a thesis, a campaign, stale temporaries);
 the guard is exercised through the real CLI where the verb checks before working, and through the
-writers other verbs call (workbench.learn.tune, workbench.atomic) where the check comes at the end.
+writers other verbs call (workbench.commands.tune, workbench.atomic) where the check comes at the end.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def test_fit_drag_refuses_a_folder_it_did_not_write(tmp_path, capsys):
 
 def test_tune_writer_refuses_a_campaign_folder_and_a_thesis(raw_campaign, tmp_path):
     """The issue's data loss: an output named like a campaign beside it. tune's writer finds its verb itself."""
-    from workbench.learn.tune import write_outputs
+    from workbench.commands.tune import write_outputs
 
     before = tree_hash(raw_campaign)
     with pytest.raises(ContractError, match="was not written by `workbench tune`"):
@@ -180,7 +180,7 @@ def test_a_failed_build_leaves_the_old_folder_and_no_temporary(tmp_path):
 
 
 def test_the_verb_is_found_from_the_call_stack(tmp_path):
-    from workbench.learn.tune import write_outputs
+    from workbench.commands.tune import write_outputs
 
     summary = {"study": "s", "storage": "x", "n_trials_total": 0, "n_trials_this_run": 0, "counts": {},
                "best": None, "trials": []}

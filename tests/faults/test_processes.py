@@ -95,10 +95,10 @@ def test_killing_tune_ends_its_workers_fails_their_trials_and_leaves_no_temp_fil
         # a worker that could not run Python when its parent died (inside a long C-level import, say)
         # is SIGKILLed by its guard before it marks its trial failed: its dead pid makes the trial stale,
         # and the next tune on the study fails it at once (no grace period to wait), as here
-        from workbench.learn.tune import _fail_stale, resolve_storage
+        from workbench.learn.tune_storage import fail_stale, resolve_storage
 
         storage, _ = resolve_storage(str(journal), "k")
-        failed = _fail_stale(optuna.load_study(study_name="k", storage=storage))
+        failed = fail_stale(optuna.load_study(study_name="k", storage=storage))
         assert failed, "a RUNNING trial of a dead worker was not recognised as stale"
     assert running() == 0, "a killed command's trial is still RUNNING"
 

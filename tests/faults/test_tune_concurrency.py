@@ -20,7 +20,8 @@ pytestmark = pytest.mark.faults
 
 
 def _journal(path):
-    from workbench.learn.tune import TuneCfg, resolve_storage
+    from workbench.learn.tune import TuneCfg
+    from workbench.learn.tune_storage import resolve_storage
 
     # a 10 s interval: the worker below is killed between beats, not while it holds the journal's lock
     # (a lock left by a killed writer blocks the journal for Optuna's 30 s lock grace period)
@@ -35,7 +36,8 @@ def test_a_trial_whose_worker_was_killed_is_failed_at_once_and_queued_again(tmp_
     # a real worker process: asks for a trial, beats, then hangs until it is killed
     code = textwrap.dedent(f"""
         import time, optuna
-        from workbench.learn.tune import TuneCfg, resolve_storage
+        from workbench.learn.tune import TuneCfg
+        from workbench.learn.tune_storage import resolve_storage
         from optuna.storages._heartbeat import get_heartbeat_thread
         st = resolve_storage({str(journal)!r}, "s", TuneCfg(heartbeat_interval_s=10, grace_period_s=30))[0]
         study = optuna.load_study(study_name="s", storage=st)
@@ -118,7 +120,7 @@ _STORAGES: dict = {}
 def _trials(storage_arg: str, study: str):
     import optuna
 
-    from workbench.learn.tune import resolve_storage
+    from workbench.learn.tune_storage import resolve_storage
 
     if storage_arg not in _STORAGES:  # one storage (one connection pool) per URL
         _STORAGES[storage_arg] = resolve_storage(storage_arg, study)[0]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from learn_helpers import tiny_config
@@ -54,11 +56,48 @@ def test_each_variant_trains_and_reduces_loss(variant, prepared, parquet, tmp_pa
 
 
 @pytest.fixture(scope="module")
-def model(prepared, parquet, tmp_path_factory):
+def trained(prepared, parquet, tmp_path_factory):
+    """(cfg, metrics, objects) of a tiny training whose configuration names a model folder."""
     from workbench.learn.train import train
 
-    cfg = tiny_config(parquet, tmp_path_factory.mktemp("m"), **{"tracking.enabled": False, "model_dir": None})
-    return train(cfg, prepared=prepared)[1]["model"]
+    root = tmp_path_factory.mktemp("m")
+    cfg = tiny_config(parquet, root, **{"tracking.enabled": False, "model_dir": str(root / "model")})
+    metrics, objects = train(cfg, prepared=prepared)
+    return cfg, metrics, objects
+
+
+@pytest.fixture(scope="module")
+def model(trained):
+    return trained[2]["model"]
+
+
+def test_train_writes_nothing_and_its_card_written_by_the_command_reloads(trained, prepared, tmp_path):
+    """Issue 17.2: train(cfg) returns the model folder as bytes; the command writes it, atomically, as one set."""
+    import csv
+    import io
+    import json
+
+    from workbench.atomic import read_marker
+    from workbench.commands.train import write_model_card
+    from workbench.learn.legmodel import load_model
+
+    cfg, metrics, objects = trained
+    root = Path(cfg.model_dir).parent
+    assert not Path(cfg.model_dir).exists() and sorted(p.name for p in root.iterdir()) == []
+    card = objects["card"]
+    assert set(card) == {"model.json", "weights.pt", "config.json", "split.json", "metrics.json", "history.csv",
+                         "learning_curve.png"}
+    assert card["learning_curve.png"].startswith(b"\x89PNG\r\n\x1a\n")
+    rows = list(csv.DictReader(io.StringIO(card["history.csv"].decode())))
+    assert len(rows) == metrics["epochs"] == cfg.trainer.max_epochs
+    assert json.loads(card["metrics.json"])["best_val_loss"] == pytest.approx(metrics["best_val_loss"])
+    assert json.loads(card["split.json"]) == prepared.split.to_dict(prepared.table)
+
+    out = write_model_card(tmp_path / "model", card)
+    assert {p.name for p in out.iterdir()} == set(card) | {".workbench-output.json"}
+    assert read_marker(out)["verb"] == "train"
+    m = _motion(np.arange(100) / 65)
+    assert np.array_equal(load_model(out).wrench(m), objects["model"].wrench(m))
 
 
 def _motion(t_s, speed=0.2, params=(10.0, -100.0, 80.0, -20.0, 0.5, 1.0472)):

@@ -54,9 +54,9 @@ def test_train_writes_model_folder_and_registers_champion(trained, project):
     assert "model/MLmodel" in {a.path for a in client.list_artifacts(run.info.run_id, "model")}
     import mlflow
 
-    from workbench.learn.registry import _model_folder
+    from workbench.learn.legmodel import mlflow_model_folder
 
-    logged = _model_folder(Path(mlflow.artifacts.download_artifacts(f"runs:/{run.info.run_id}/model")))
+    logged = mlflow_model_folder(Path(mlflow.artifacts.download_artifacts(f"runs:/{run.info.run_id}/model")))
     assert {"model.json", "weights.pt", "split.json"} <= {p.name for p in logged.iterdir()}
     assert run.data.tags["state"] == "complete" and run.data.tags["model_id"] == mv.source.removeprefix("models:/")
 

@@ -20,12 +20,17 @@ from learn_helpers import tiny_config
 
 @pytest.fixture(scope="module")
 def trained(project, parquet):
-    """A DVC-stage training run registered as fed-lstm@champion (``train --register --dvc-stage train``)."""
+    """A DVC-stage training run registered as fed-lstm@champion (``train --register --dvc-stage train``).
+
+    ``train(cfg)`` writes nothing; its model card is written as the command does.
+    """
+    from workbench.commands.train import write_model_card
     from workbench.learn.train import train
 
     interp, _ = parquet
     cfg = tiny_config([interp], project, **{"tracking.register": True, "tracking.dvc_stage": "train"})
     metrics, objects = train(cfg)
+    write_model_card(cfg.model_dir, objects["card"])
     return cfg, metrics, objects
 
 

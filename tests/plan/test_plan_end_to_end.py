@@ -14,6 +14,7 @@ import pytest
 def ensemble_dir(tmp_path_factory):
     from learn_helpers import make_frame, tiny_config
 
+    from workbench.commands.train_ensemble import write_ensemble
     from workbench.learn.ensemble import load_ensemble, train_ensemble
 
     d = tmp_path_factory.mktemp("ens")
@@ -21,7 +22,8 @@ def ensemble_dir(tmp_path_factory):
     frame.write_parquet(d / "synth.parquet")
     cfg = tiny_config([d / "synth.parquet"], d, **{"tracking.enabled": False, "model_dir": None,
                                                     "data.seq_len": 8, "trainer.max_epochs": 1})
-    rec = train_ensemble(cfg, d / "ensemble", members=3, first_seed=5)
+    rec, files = train_ensemble(cfg, members=3, first_seed=5)
+    write_ensemble(d / "ensemble", files)
     ens = load_ensemble(d / "ensemble")
     assert len(ens.members) == 3 and [m["seed"] for m in rec["members"]] == [5, 6, 7]
     return d / "ensemble", rec

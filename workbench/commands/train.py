@@ -89,6 +89,8 @@ def run(args) -> int:
         check_replaceable(cfg.model_dir, "train")  # a wrong --out is refused before the training, not after
 
     metrics, objects = train(cfg, report=None if args.quiet else info)
+    if cfg.model_dir:
+        write_model_card(cfg.model_dir, objects["card"])
     s = metrics["summary"]
     import torch
 
@@ -111,3 +113,19 @@ def run(args) -> int:
         info(f"registered {cfg.tracking.registered_model} version {objects['model_version']} "
              f"as @{cfg.tracking.alias} (run {objects['run_id']}); mlflow.pyfunc.load_model({uri!r}) loads it")
     return 0
+
+
+def write_model_card(target, card: dict[str, bytes]):
+    """Write a model card (:func:`workbench.learn.train.model_card`: name -> bytes) as the folder ``target``.
+
+    One set: built beside ``target`` and swapped in whole (:func:`workbench.atomic.atomic_dir`), so a
+    kill leaves the previous folder or the new one; a folder ``train`` did not write is refused.
+    """
+    from pathlib import Path
+
+    from workbench.atomic import atomic_dir
+
+    with atomic_dir(target, verb="train") as tmp:
+        for name, data in card.items():
+            (Path(tmp) / name).write_bytes(data)
+    return Path(target)

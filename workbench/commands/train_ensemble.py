@@ -74,8 +74,9 @@ def run(args) -> int:
     check_replaceable(args.out, "train-ensemble")
     info(f"train-ensemble: {members} x {cfg.model.variant} {cfg.model.hidden_size}x{cfg.model.num_layers}, "
          f"{cfg.trainer.max_epochs} epochs, data {', '.join(cfg.data.paths)}")
-    rec = train_ensemble(cfg, args.out, members=members, first_seed=sec.first_seed,
-                         report=None if args.quiet else info)
+    rec, files = train_ensemble(cfg, members=members, first_seed=sec.first_seed,
+                                report=None if args.quiet else info)
+    write_ensemble(args.out, files)
     cal = rec["calibration"]
     for key in ("coverage_test_before", "coverage_test_after"):
         if key in cal:
@@ -83,3 +84,21 @@ def run(args) -> int:
                  + "  ".join(f"{c} {100 * v:.0f} %" for c, v in cal[key].items()))
     info(f"ensemble folder: {args.out} ({rec['cost_s']['total']:.0f} s)")
     return 0
+
+
+def write_ensemble(target, files: dict[str, bytes]):
+    """Write an ensemble folder (:func:`workbench.learn.ensemble.train_ensemble`'s files: relative name -> bytes).
+
+    One set: built beside ``target`` and swapped in whole (:func:`workbench.atomic.atomic_dir`): a kill
+    leaves the previous ensemble or the new one, never members of one with the other's ensemble.json.
+    """
+    from pathlib import Path
+
+    from workbench.atomic import atomic_dir
+
+    with atomic_dir(target, verb="train-ensemble") as tmp:
+        for name, data in files.items():
+            path = Path(tmp) / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+    return Path(target)

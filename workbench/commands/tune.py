@@ -66,7 +66,9 @@ def run(args) -> int:
         from workbench.atomic import check_replaceable
 
         check_replaceable(args.out, "tune")  # a wrong --out is refused before the study, not after
-    summary = run_study(cfg, tune, out_dir=args.out, fresh=args.fresh, report=info)
+    summary = run_study(cfg, tune, fresh=args.fresh, report=info)
+    if args.out:
+        write_outputs(summary, args.out)
     c, b = summary["counts"], summary["best"]
     info(f"study {summary['study']!r}: {summary['n_trials_this_run']} trial(s) this run ({c['COMPLETE']} complete, "
          f"{c['PRUNED']} pruned, {c['FAIL']} failed), {summary['n_trials_total']} in the study, "
@@ -77,3 +79,20 @@ def run(args) -> int:
     if args.out:
         info(f"wrote {args.out}/best.json and trials.csv")
     return 0
+
+
+def write_outputs(summary: dict, out_dir):
+    """``best.json`` and ``trials.csv`` (:func:`workbench.learn.tune_summary.tune_files`) in ``out_dir``, as one set.
+
+    The folder is built beside ``out_dir`` and swapped in whole (:func:`workbench.atomic.atomic_dir`, the
+    verb found from the call stack: ``tune``); a folder ``tune`` did not write is refused first.
+    """
+    from pathlib import Path
+
+    from workbench.atomic import atomic_dir
+    from workbench.learn.tune_summary import tune_files
+
+    with atomic_dir(out_dir) as tmp:  # refuses a foreign folder before the summary is looked at
+        for name, data in tune_files(summary).items():
+            (Path(tmp) / name).write_bytes(data)
+    return Path(out_dir)

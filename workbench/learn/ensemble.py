@@ -18,7 +18,9 @@ holding out whole runs measures that on the validation split itself. The coverag
 before (scale 1) and after calibration, is what ``ensemble.json`` reports (with two other val-fitted
 rules for comparison, never used to choose).
 
-The folder (``workbench train-ensemble``, or :func:`train_ensemble`)::
+The folder (:func:`train_ensemble` returns its files as bytes; ``workbench train-ensemble`` writes
+them through ``workbench/atomic.py`` as one set; :func:`load_ensemble` reads it back through
+:mod:`workbench.learn.legmodel`, learn's edge for saved models)::
 
     ENSEMBLE_DIR/ensemble.json        schema, members, noise, scale, calibration report, costs
     ENSEMBLE_DIR/member-00/ ...       one model folder per member (model.json, weights.pt)
@@ -80,19 +82,16 @@ class Ensemble:
 
 
 def load_ensemble(folder: str | Path) -> Ensemble:
-    """Read an ensemble folder written by :func:`train_ensemble`."""
-    from workbench.learn.legmodel import load_model
+    """Read an ensemble folder written by ``workbench train-ensemble`` (:func:`train_ensemble`'s files)."""
+    from workbench.learn.legmodel import load_model, read_model_json
 
     folder = Path(folder)
     path = folder / "ensemble.json"
-    if not path.is_file():
-        raise ModelError("no ensemble.json: not an ensemble folder (workbench train-ensemble writes one)", path=folder)
-    try:
-        rec = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ModelError(f"ensemble.json is not JSON ({exc.msg})", path=path) from exc
-    if rec.get("schema") != SCHEMA:
-        raise ModelError(f"unknown ensemble schema {rec.get('schema')!r}", path=path, hint=f"expected {SCHEMA}")
+    rec = read_model_json(folder, "ensemble.json",
+                          missing="no ensemble.json: not an ensemble folder (workbench train-ensemble writes one)")
+    if not isinstance(rec, dict) or rec.get("schema") != SCHEMA:
+        schema = rec.get("schema") if isinstance(rec, dict) else None
+        raise ModelError(f"unknown ensemble schema {schema!r}", path=path, hint=f"expected {SCHEMA}")
     try:
         members = [load_model(folder / m["dir"]) for m in rec["members"]]
         noise = np.array([rec["noise_var"][c] for c in WRENCH_CHANNELS], float)
@@ -199,20 +198,22 @@ def _per_channel(x) -> dict:
     return {c: float(v) for c, v in zip(WRENCH_CHANNELS, x, strict=True)}
 
 
-def train_ensemble(cfg, out_dir: str | Path, *, members: int = 5, first_seed: int = 0,
-                   report: Callable[[str], None] | None = None, split=None) -> dict:
-    """Train ``members`` FED-LSTMs through :func:`workbench.learn.train.train` and write the ensemble folder.
+def train_ensemble(cfg, *, members: int = 5, first_seed: int = 0, report: Callable[[str], None] | None = None,
+                   split=None) -> tuple[dict, dict[str, bytes]]:
+    """Train ``members`` FED-LSTMs through :func:`workbench.learn.train.train`; return the ensemble folder's content.
 
     ``cfg`` is the :class:`LearnConfig` every member uses (its ``trainer.seed`` is replaced by
     ``first_seed + k``; its ``model_dir`` is ignored). The data are read and split once. Returns
-    the ``ensemble.json`` record (calibration before/after, member and ensemble test MSE, costs).
+    ``(record, files)``: the ``ensemble.json`` record (calibration before/after, member and ensemble
+    test MSE, costs) and the folder's files as bytes (``ensemble.json``, ``member-XX/model.json``,
+    ``member-XX/weights.pt``), which the caller writes (``workbench train-ensemble``: atomically,
+    :func:`workbench.commands.train_ensemble.write_ensemble`).
     ``split``: a :class:`~workbench.learn.split.ParameterSplit` to use instead of splitting the
     data by ``cfg.data.split`` (e.g. keep a first campaign's split and train on every later run).
     """
-    from workbench.atomic import atomic_dir
     from workbench.errors import ContractError
     from workbench.learn.datamodule import prepare_data
-    from workbench.learn.legmodel import save_model
+    from workbench.learn.legmodel import model_files
     from workbench.learn.train import train
     from workbench.learn.windows import read_table
 
@@ -276,9 +277,7 @@ def train_ensemble(cfg, out_dir: str | Path, *, members: int = 5, first_seed: in
                                      "noise": _per_channel(noise)}
     rec["cost_s"] = {"train": sum(m["train_s"] for m in member_rec), "calibrate": time.perf_counter() - t_cal,
                      "total": time.perf_counter() - t0}
-    with atomic_dir(out_dir, verb="train-ensemble") as tmp:
-        for m, r in zip(models, member_rec, strict=True):
-            (Path(tmp) / r["dir"]).mkdir()
-            save_model(m, Path(tmp) / r["dir"])
-        (Path(tmp) / "ensemble.json").write_text(json.dumps(rec, indent=2) + "\n", encoding="utf-8")
-    return rec
+    files = {f"{r['dir']}/{name}": data for m, r in zip(models, member_rec, strict=True)
+             for name, data in model_files(m).items()}
+    files["ensemble.json"] = (json.dumps(rec, indent=2) + "\n").encode("utf-8")
+    return rec, files

@@ -13,17 +13,28 @@ tick, predicted, and interpolated back, so the seq_len-tick window always spans 
 
 The folder holds ``model.json`` (variant, architecture, seq_len, dt_s, normalisation, training
 provenance) and ``weights.pt`` (the state dict); see :func:`save_model` / :func:`load_model`.
+
+This module is learn's I/O edge for saved models (docs/architecture.md, "Who touches files"):
+:func:`model_files` turns a model into the bytes of its folder (a command writes them, through
+``workbench/atomic.py``), :func:`staged_folder` lays such bytes out in a temporary folder for
+MLflow to log, and every read of a saved folder goes through here: :func:`load_model`,
+:func:`read_model_head` (is this a learned model's folder?), :func:`read_model_json` (a JSON file
+of a model folder, e.g. an ensemble's ``ensemble.json``) and :func:`mlflow_model_folder` (the
+model folder inside a downloaded MLflow model).
 """
 
 from __future__ import annotations
 
+import io
 import json
+import tempfile
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-from workbench.errors import ModelError
+from workbench.errors import ModelError, ModelLoadError
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import LegMotion
 from workbench.learn.config import FEATURES, ModelCfg
@@ -117,14 +128,87 @@ def model_record(model: LearnedLegModel) -> dict:
             "normalisation": model.norm.to_dict(), "info": model.info}
 
 
-def save_model(model: LearnedLegModel, folder: str | Path) -> Path:
-    """Write ``model.json`` and ``weights.pt`` into ``folder`` (which must exist; callers use atomic_dir)."""
+def model_files(model: LearnedLegModel) -> dict[str, bytes]:
+    """The files of a model folder as bytes: ``model.json`` and ``weights.pt`` (the state dict)."""
     import torch
 
+    buf = io.BytesIO()
+    torch.save(model.net.state_dict(), buf)
+    return {"model.json": (json.dumps(model_record(model), indent=2) + "\n").encode("utf-8"),
+            "weights.pt": buf.getvalue()}
+
+
+def save_model(model: LearnedLegModel, folder: str | Path) -> Path:
+    """Write ``model.json`` and ``weights.pt`` into ``folder`` (which must exist; callers use atomic_dir)."""
     folder = Path(folder)
-    torch.save(model.net.state_dict(), folder / "weights.pt")
-    (folder / "model.json").write_text(json.dumps(model_record(model), indent=2) + "\n", encoding="utf-8")
+    for name, data in model_files(model).items():
+        (folder / name).write_bytes(data)
     return folder
+
+
+@contextmanager
+def staged_folder(files: Mapping[str, bytes]) -> Iterator[Path]:
+    """A temporary folder holding ``files`` (relative name -> bytes), removed on leaving: for MLflow to log."""
+    with tempfile.TemporaryDirectory(prefix="wb-model-") as tmp:
+        root = Path(tmp)
+        for name, data in files.items():
+            (root / name).parent.mkdir(parents=True, exist_ok=True)
+            (root / name).write_bytes(data)
+        yield root
+
+
+def read_model_head(path: str | Path) -> tuple[Path, dict] | None:
+    """``(folder, model.json)`` when ``path`` is a folder (or its ``model.json``) with a readable ``model.json``.
+
+    None when there is no ``model.json`` or it is not a JSON object: the caller decides what else
+    the path may be.
+    """
+    p = Path(path)
+    if p.is_file() and p.name == "model.json":
+        p = p.parent
+    spec = p / "model.json"
+    if not spec.is_file():
+        return None
+    try:
+        head = json.loads(spec.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return (p, head) if isinstance(head, dict) else None
+
+
+def read_model_json(folder: str | Path, name: str, *, missing: str) -> Any:
+    """The JSON file ``name`` of a saved model folder; ``missing``: the fault when it is not there.
+
+    A missing file or one that is not JSON is a one-line :class:`ModelLoadError` naming the path.
+    """
+    folder = Path(folder)
+    path = folder / name
+    if not path.is_file():
+        raise ModelLoadError(missing, path=folder)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ModelLoadError(f"{name} is not JSON ({getattr(exc, 'msg', exc)})", path=path) from exc
+
+
+def mlflow_model_folder(path: str | Path, artifact: str = "leg_model") -> Path:
+    """The model folder inside a downloaded registry version: the MLflow model's ``artifact``, or the folder itself.
+
+    A folder with ``model.json`` (a version registered before models were MLflow models) or without
+    ``MLmodel`` is returned as it is.
+    """
+    path = Path(path)
+    if (path / "model.json").is_file() or not (path / "MLmodel").is_file():
+        return path
+    import yaml
+
+    try:
+        doc = yaml.safe_load((path / "MLmodel").read_text(encoding="utf-8")) or {}
+        rel = doc["flavors"]["python_function"]["artifacts"][artifact]["path"]
+    except (OSError, yaml.YAMLError, KeyError, TypeError) as exc:
+        raise ModelLoadError(f"an MLflow model without the workbench's {artifact} artifact "
+                             f"({type(exc).__name__}: {exc})", path=path / "MLmodel") from None
+    return path / rel
 
 
 def load_model(folder: str | Path, **info) -> LearnedLegModel:

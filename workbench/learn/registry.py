@@ -55,26 +55,20 @@ def load_path(path: str | Path, **kwargs):
     The path-loader hook of :func:`workbench.hydro.legmodel.load_leg_model`: other kinds of saved
     models (e.g. augmented models) answer for their own paths. A folder that says it is a learned
     model but does not load (torn weights, a foreign schema) fails with a one-line ModelError.
+    The folder is read through :mod:`workbench.learn.legmodel` (learn's edge for saved models).
     """
-    import json
+    from workbench.learn.legmodel import MODEL_SCHEMA, read_model_head
 
-    from workbench.learn.legmodel import MODEL_SCHEMA
-
-    p = Path(path)
-    if p.is_file() and p.name == "model.json":
-        p = p.parent
-    spec = p / "model.json"
-    if not spec.is_file():
+    found = read_model_head(path)
+    if found is None:
         return None
-    try:
-        head = json.loads(spec.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        head = None
-    if not isinstance(head, dict) or not str(head.get("schema", "")).startswith("workbench/learned-leg-model@"):
+    folder, head = found
+    if not str(head.get("schema", "")).startswith("workbench/learned-leg-model@"):
         return None
     if head.get("schema") != MODEL_SCHEMA:
-        raise ModelError(f"unknown model schema {head.get('schema')!r}", path=spec, hint=f"expected {MODEL_SCHEMA}")
-    return load_folder(p, model_path=str(path), **kwargs)
+        raise ModelError(f"unknown model schema {head.get('schema')!r}", path=folder / "model.json",
+                         hint=f"expected {MODEL_SCHEMA}")
+    return load_folder(folder, model_path=str(path), **kwargs)
 
 
 def load_model_uri(spec: str, *, tracking_uri: str | None = None):
@@ -82,28 +76,13 @@ def load_model_uri(spec: str, *, tracking_uri: str | None = None):
 
     A version is an MLflow pyfunc model whose artifact ``leg_model`` is the model folder
     (:mod:`workbench.learn.pyfunc`), or, if it was registered before models were MLflow models,
-    the plain folder itself; both load.
+    the plain folder itself; both load (:func:`workbench.learn.legmodel.mlflow_model_folder`).
     """
+    from workbench.learn.legmodel import mlflow_model_folder
     from workbench.tracking import download_model
 
     path, info = download_model(spec, tracking_uri)
-    return load_folder(_model_folder(path), **info)
-
-
-def _model_folder(path: Path) -> Path:
-    """The model folder inside a downloaded version: the MLflow model's ``leg_model`` artifact, or the folder itself."""
-    path = Path(path)
-    if (path / "model.json").is_file() or not (path / "MLmodel").is_file():
-        return path
-    import yaml
-
-    try:
-        doc = yaml.safe_load((path / "MLmodel").read_text(encoding="utf-8")) or {}
-        rel = doc["flavors"]["python_function"]["artifacts"]["leg_model"]["path"]
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as exc:
-        raise ModelError(f"an MLflow model without the workbench's leg_model artifact ({type(exc).__name__}: {exc})",
-                         path=path / "MLmodel") from None
-    return path / rel
+    return load_folder(mlflow_model_folder(path), **info)
 
 
 def load_champion(*, tracking_uri: str | None = None, name: str | None = None, alias: str | None = None,

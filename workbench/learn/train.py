@@ -3,8 +3,13 @@
 The one function the CLI (``workbench train``), the Optuna objective and the tests call. It reads
 the data (or takes prepared data, so a search reads it once per worker), splits it by parameter
 set, trains with Lightning, keeps the best-validation weights, scores the model and the EF on
-the held-out test sets through the leg force model interface, writes the model folder, and
+the held-out test sets through the leg force model interface, and
 records everything in MLflow (and registers the model) when tracking is enabled.
+
+It writes no file: the model card (the model folder's files: ``model.json``, ``weights.pt``,
+``config.json``, ``split.json``, ``metrics.json``, ``history.csv``, ``learning_curve.png``) comes
+back as bytes in ``objects["card"]`` (:func:`model_card`), and ``workbench train`` writes it to
+``--out`` through ``workbench/atomic.py`` as one set (:func:`workbench.commands.train.write_model_card`).
 """
 
 from __future__ import annotations
@@ -13,11 +18,9 @@ import csv
 import io
 import json
 import logging
-import tempfile
 import time
 from contextlib import contextmanager
 from datetime import timedelta
-from pathlib import Path
 from typing import Callable, Sequence
 
 from workbench.learn.config import LearnConfig
@@ -79,7 +82,9 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
     ``report``: where per-epoch lines go; ``parent_run_id``: MLflow parent (tune trials);
     ``score_test``: score on the held-out test sets (a search leaves them alone).
     ``objects`` holds ``model`` (the :class:`LegForceModel`), ``module``, ``datamodule``,
-    ``prepared``, ``history`` and, when tracked, ``run_id`` and ``model_version``.
+    ``prepared``, ``history``, ``card`` (the model folder's files as bytes, :func:`model_card`;
+    with the learning curve when ``cfg.model_dir`` names a folder to write) and, when tracked,
+    ``run_id`` and ``model_version``. Nothing is written to disk: the caller writes ``card``.
     """
     import lightning.pytorch as pl
     from lightning.pytorch.callbacks import EarlyStopping
@@ -167,14 +172,13 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
             metrics["test_mse"] = scored["lstm"]["mse"]
             metrics["test_r2"] = scored["lstm"]["r2"]
             metrics["test_nmse"] = sum(1 - v for v in scored["lstm"]["r2"].values()) / 6
-        objects.update(model=model, history=log.history)
         summary = _summary(metrics)
-        if cfg.model_dir:
-            write_model_dir(cfg, model, prepared, summary, log.history, cfg.model_dir)
+        card = model_card(cfg, model, prepared, summary, log.history, curve=bool(cfg.model_dir))
+        objects.update(model=model, history=log.history, card=card)
         if run is not None:
             log_metrics(summary, sep="_")
             if log_model:
-                objects.update(_log_model(cfg, run, model, prepared, summary, log.history, tags))
+                objects.update(_log_model(cfg, run, card, prepared, tags))
     metrics["summary"] = summary
     return metrics, objects
 
@@ -205,28 +209,25 @@ def stop_reason(trainer, cfg: LearnConfig, epochs: int) -> dict:
                                          "(a callback asked to stop)"}
 
 
-def _log_model(cfg: LearnConfig, run, model, prepared, summary: dict, history: list[dict], tags: dict) -> dict:
-    """Log the model folder as an MLflow pyfunc model of the run; register it when the configuration says so.
+def _log_model(cfg: LearnConfig, run, card: dict[str, bytes], prepared, tags: dict) -> dict:
+    """Log the model card as an MLflow pyfunc model of the run; register it when the configuration says so.
 
+    The card is laid out in a temporary folder for MLflow (:func:`workbench.learn.legmodel.staged_folder`);
+    its learning curve, when it has one, is also logged as an artifact of the run.
     Returns ``{"model_id"}`` (the MLflow logged model) and, when registered, ``{"model_version"}``.
     """
     import mlflow
 
+    from workbench.learn.legmodel import staged_folder
     from workbench.learn.pyfunc import log_leg_model
     from workbench.tracking import MODEL_ARTIFACT, MODEL_ID_TAG, register_model
 
     keep = ("campaign", "variant", "git_commit", "dvc_stage")
-    if cfg.model_dir:
-        info = log_leg_model(cfg.model_dir, table=prepared.table, name=MODEL_ARTIFACT,
+    with staged_folder(card) as folder:
+        info = log_leg_model(folder, table=prepared.table, name=MODEL_ARTIFACT,
                              tags={k: tags[k] for k in keep if k in tags})
-        curve = Path(cfg.model_dir) / "learning_curve.png"
-        if curve.is_file():
-            mlflow.log_artifact(str(curve))
-    else:
-        with tempfile.TemporaryDirectory() as tmp:
-            _write_model_files(cfg, model, prepared, summary, history, Path(tmp))
-            info = log_leg_model(tmp, table=prepared.table, name=MODEL_ARTIFACT,
-                                 tags={k: tags[k] for k in keep if k in tags})
+        if "learning_curve.png" in card:
+            mlflow.log_artifact(str(folder / "learning_curve.png"))
     mlflow.set_tag(MODEL_ID_TAG, info.model_id)
     out = {"model_id": info.model_id}
     if cfg.tracking.register:
@@ -259,25 +260,29 @@ def _history_csv(history: list[dict]) -> str:
     return buf.getvalue()
 
 
-def _write_model_files(cfg: LearnConfig, model, prepared, summary: dict, history: list[dict], folder: Path) -> None:
-    from workbench.learn.legmodel import save_model
-
-    save_model(model, folder)
-    (folder / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n", encoding="utf-8")
-    (folder / "split.json").write_text(json.dumps(prepared.split.to_dict(prepared.table), indent=2) + "\n",
-                                       encoding="utf-8")
-    (folder / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    (folder / "history.csv").write_text(_history_csv(history), encoding="utf-8")
+def _json_bytes(doc) -> bytes:
+    return (json.dumps(doc, indent=2) + "\n").encode("utf-8")
 
 
-def write_model_dir(cfg: LearnConfig, model, prepared, summary: dict, history: list[dict], target: str | Path) -> Path:
-    """Write the model folder atomically (model.json, weights.pt, config, split, metrics, learning curve)."""
-    from workbench.atomic import atomic_dir
+def model_card(cfg: LearnConfig, model, prepared, summary: dict, history: list[dict], *,
+               curve: bool = True) -> dict[str, bytes]:
+    """The model folder's files as bytes: name -> content.
 
-    with atomic_dir(target) as tmp:
-        _write_model_files(cfg, model, prepared, summary, history, Path(tmp))
-        if history:
-            from workbench.learn.figures import learning_curve
+    The model (``model.json``, ``weights.pt``), ``config.json``, ``split.json``, ``metrics.json``,
+    ``history.csv`` and, with ``curve`` and a history, ``learning_curve.png``. The caller writes
+    them (``workbench train``: atomically, as one set).
+    """
+    from workbench.learn.legmodel import model_files
 
-            learning_curve(history).savefig(Path(tmp) / "learning_curve.png", dpi=100)
-    return Path(target)
+    card = model_files(model)
+    card["config.json"] = _json_bytes(cfg.to_dict())
+    card["split.json"] = _json_bytes(prepared.split.to_dict(prepared.table))
+    card["metrics.json"] = _json_bytes(summary)
+    card["history.csv"] = _history_csv(history).encode("utf-8")
+    if curve and history:
+        from workbench.learn.figures import learning_curve
+
+        buf = io.BytesIO()
+        learning_curve(history).savefig(buf, dpi=100, format="png")  # a matplotlib Figure: no pyplot state
+        card["learning_curve.png"] = buf.getvalue()
+    return card

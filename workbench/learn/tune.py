@@ -1,12 +1,20 @@
 """Hyper-parameter search: an Optuna study over sequence length, size, dropout, learning rate, batch and variant.
 
-The study lives in storage that survives a restart and that several processes share: by default
-an Optuna journal file ``.optuna/<study>.journal`` at the project root (fast and safe for
-processes on one machine), or any Optuna storage URL (``postgresql://...`` for a cluster).
-``run_study`` creates or resumes the study, opens a parent MLflow run, and runs the trials in
-``workers`` processes (``python -m workbench.learn.tune --worker SPEC``), each taking an exact
-share of ``n_trials`` so that no trial is lost or run twice; running the same command on another
-machine against the same storage adds its trials to the same study.
+The search in three modules, one concern each:
+
+- here, the study: its settings (``tune`` section), the search space, the objective (one
+  ``train(cfg)`` per trial), :func:`run_worker` (one worker's share of trials), :func:`run_study`
+  (create or resume the study, parent MLflow run, register the best; returns the summary);
+- :mod:`workbench.learn.tune_summary`: what a study reports (progress lines, the summary of a
+  command's trials, ``best.json`` and ``trials.csv`` as bytes: :func:`~workbench.learn.tune_summary.tune_files`);
+- :mod:`workbench.learn.tune_storage`: where the study lives (an Optuna journal file
+  ``.optuna/<study>.journal`` at the project root by default, fast and safe for processes on one
+  machine, or any Optuna storage URL such as ``postgresql://...`` for a cluster), its lock,
+  heartbeats, the retry of dead workers' trials, per-trial sampler seeds;
+- :mod:`workbench.learn.tune_workers`: the worker processes (``python -m
+  workbench.learn.tune_workers --worker -``), each taking an exact share of ``n_trials`` so that
+  no trial is lost or run twice; running the same command on another machine against the same
+  storage adds its trials to the same study.
 
 Several commands may share one study at once (on one machine or many): each command has an id
 (``command`` user attribute of its trials), counts and reports only its own trials ("trial 3/4"),
@@ -21,13 +29,12 @@ trials end KILLED, tagged ``state=pruned``), pruned on the validation loss by Op
 ``n_warmup_steps`` epochs. The best
 trial (lowest validation loss, never the test score) has its logged model registered under
 the ``tuned`` alias; its parameters go to ``best.json`` as ``--set`` overrides for ``workbench train``.
+Nothing here writes a file: ``workbench tune --out`` writes ``tune_files(summary)`` through ``workbench/atomic.py``.
 """
 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -36,6 +43,7 @@ from typing import Any, Callable, Mapping
 
 from workbench.errors import ContractError, StageError
 from workbench.learn.config import LearnConfig, config_from_dict
+from workbench.learn.tune_summary import progress_callback, summarise
 from workbench.threads import AUTO, idle_cores
 
 #: short search-parameter names -> configuration keys (any dotted key may be used directly too)
@@ -79,41 +87,6 @@ class TuneSettings:
 
 #: the name before issue 17 (settings classes end in ``Settings``); kept for existing imports
 TuneCfg = TuneSettings
-
-
-def resolve_storage(storage: str | None, study: str, tune: "TuneCfg | None" = None):
-    """An Optuna storage with heartbeats: default journal file, a ``*.journal`` path, or an Optuna storage URL.
-
-    Returns ``(storage, where)``; heartbeat interval, grace period and retries from ``tune``.
-    """
-    from optuna.storages.journal import JournalFileBackend, JournalFileOpenLock
-
-    from workbench.learn.tune_storage import HeartbeatJournalStorage, HeartbeatRDBStorage, retry_callback
-    from workbench.project import project_root
-
-    tune = tune or TuneCfg()
-    beat = {"heartbeat_interval": max(1, int(tune.heartbeat_interval_s)),
-            "grace_period": max(int(tune.grace_period_s), 2 * int(tune.heartbeat_interval_s))}
-
-    if storage is None or storage.endswith(".journal") or storage.startswith("journal:"):
-        path = Path(storage.removeprefix("journal:") if storage else project_root() / ".optuna" / f"{study}.journal")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # open()-based lock: works on local disks and NFS alike, no symlink permissions needed
-        return HeartbeatJournalStorage(JournalFileBackend(str(path), lock_obj=JournalFileOpenLock(str(path))), **beat,
-                                       stale_trial_callback=retry_callback(tune.max_retry)), str(path)
-    if "://" not in storage:
-        raise ContractError(f"storage {storage!r} is neither a .journal file nor a storage URL",
-                            hint="e.g. .optuna/study.journal or postgresql://user@host/db")
-    # Several machines starting on an empty database race to create Optuna's schema (PostgreSQL
-    # then raises a unique violation on its enum types): whoever loses waits and retries once the
-    # winner's tables exist.
-    from sqlalchemy.exc import IntegrityError, ProgrammingError
-
-    from workbench.tracking import retry_race
-
-    return retry_race(lambda: HeartbeatRDBStorage(storage, **beat,
-                                                  heartbeat_stale_trial_callback=retry_callback(tune.max_retry)),
-                      (IntegrityError, ProgrammingError)), storage
 
 
 def suggest(trial, space: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
@@ -189,52 +162,6 @@ def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run
     return objective
 
 
-def command_trials(trials, command: str | None, baseline: set[int] = frozenset()) -> list:
-    """The trials a command ran (its ``command`` user attribute; without an id: those not in ``baseline``)."""
-    if command is None:
-        return [t for t in trials if t.number not in baseline]
-    return [t for t in trials if t.user_attrs.get("command") == command]
-
-
-def finished_trials(trials) -> list:
-    """COMPLETE, PRUNED or FAIL trials, less failed ones that were retried (their retry counts instead)."""
-    import optuna
-
-    from workbench.learn.tune_storage import retried_numbers
-
-    S = optuna.trial.TrialState
-    retried = retried_numbers(trials)
-    return [t for t in trials if t.state in (S.COMPLETE, S.PRUNED, S.FAIL)
-            and not (t.state == S.FAIL and t.number in retried)]
-
-
-def _progress_callback(total: int, baseline: set[int], report: Callable[[str], None], tag: str,
-                       command: str | None = None):
-    import optuna
-
-    def callback(study, trial):
-        everything = study.get_trials(deepcopy=False)
-        trials = finished_trials(everything)
-        done = len(command_trials(trials, command, baseline))
-        complete = [t for t in trials if t.state == optuna.trial.TrialState.COMPLETE]
-        best = min(complete, key=lambda t: t.value) if complete else None
-        state = trial.state.name.lower()
-        if trial.state == optuna.trial.TrialState.PRUNED and trial.intermediate_values:
-            last = max(trial.intermediate_values)
-            value = f"at epoch {last + 1} (val {trial.intermediate_values[last]:.4f})"
-        else:
-            value = f"val {trial.value:.4f}" if trial.value is not None else ""
-        params = ", ".join(f"{k}={_fmt(v)}" for k, v in trial.params.items())
-        best_s = f"best {best.value:.4f} (trial {best.number})" if best else "no complete trial yet"
-        report(f"trial {done}/{total}{tag}: #{trial.number} {state} {value} [{params}]  {best_s}")
-
-    return callback
-
-
-def _fmt(v) -> str:
-    return f"{v:.3g}" if isinstance(v, float) else str(v)
-
-
 def make_pruner(spec: Mapping[str, Any]):
     """``{type: median (default), n_startup_trials, n_warmup_steps}``, ``{type: threshold, upper}`` or ``{type: none}``."""
     import optuna
@@ -257,7 +184,7 @@ def run_worker(spec: Mapping[str, Any], report: Callable[[str], None] | None = N
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     base = config_from_dict(spec["config"])
     tune = TuneCfg.from_dict(spec["tune"])
-    from workbench.learn.tune_storage import TrialSeededTPE
+    from workbench.learn.tune_storage import TrialSeededTPE, resolve_storage
 
     storage, _ = resolve_storage(spec["storage"], spec["study"], tune)
     # seeded per trial number: distinct across workers and commands; the constant liar keeps
@@ -270,18 +197,24 @@ def run_worker(spec: Mapping[str, Any], report: Callable[[str], None] | None = N
     objective = make_objective(base, tune, spec["study"], spec.get("parent_run_id"), int(spec["worker"]),
                                spec.get("command"))
     tag = f" [worker {spec['worker']}]" if spec.get("n_workers", 1) > 1 else ""
-    cbs = [_progress_callback(spec["total"], set(spec["baseline"]), report, tag, spec.get("command"))] if report else []
+    cbs = [progress_callback(spec["total"], set(spec["baseline"]), report, tag, spec.get("command"))] if report else []
     study.optimize(objective, n_trials=int(spec["n_trials"]), catch=(Exception,), callbacks=cbs,
                    gc_after_trial=False)
 
 
-def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = None, fresh: bool = False,
+def run_study(base: LearnConfig, tune: TuneCfg, *, fresh: bool = False,
               report: Callable[[str], None] | None = None) -> dict:
-    """Create/resume the study, run its trials in ``tune.workers`` processes, register the best; returns a summary."""
+    """Create/resume the study, run its trials in ``tune.workers`` processes, register the best; returns a summary.
+
+    The summary (:func:`~workbench.learn.tune_summary.summarise`) is what ``best.json`` and
+    ``trials.csv`` are made of (:func:`~workbench.learn.tune_summary.tune_files`); nothing is written here.
+    """
     import mlflow
     import optuna
 
     from workbench import procs
+    from workbench.learn.tune_storage import fail_stale, resolve_storage
+    from workbench.learn.tune_workers import spawn_workers
     from workbench.tracking import log_metrics, log_params, run_name, run_tags, setup
 
     procs.install()  # SIGTERM/SIGHUP clean up as Ctrl-C does: workers stopped, trials failed, runs ended
@@ -295,7 +228,7 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
     study = optuna.create_study(study_name=tune.study, storage=storage, direction="minimize", load_if_exists=True)
     baseline = [t.number for t in study.get_trials(deepcopy=False)]
     command = uuid.uuid4().hex[:12]
-    _fail_stale(study)  # trials of workers that died earlier: failed (and queued again) now
+    fail_stale(study)  # trials of workers that died earlier: failed (and queued again) now
     if report:
         report(f"study {tune.study!r} in {where}: {len(baseline)} earlier trial(s); running {tune.n_trials} "
                f"in {tune.workers} worker process(es)")
@@ -318,9 +251,9 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
         if tune.workers <= 1:
             run_worker({**spec, "worker": 0, "n_trials": tune.n_trials}, report)
         else:
-            _spawn_workers(spec, tune, report, study)
+            spawn_workers(spec, tune.n_trials, tune.workers, report, study)
         elapsed = time.perf_counter() - t0
-        _fail_stale(study)
+        fail_stale(study)
         summary = summarise(optuna.load_study(study_name=tune.study, storage=storage), set(baseline), elapsed,
                             command=command)
         summary["storage"] = where
@@ -333,8 +266,6 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, out_dir: str | Path | None = 
                          "n_pruned": summary["counts"]["PRUNED"], "n_failed": summary["counts"]["FAIL"],
                          "elapsed_s": elapsed})
             mlflow.log_dict(summary, "tune_summary.json")
-        if out_dir:
-            write_outputs(summary, out_dir)
         status = "FINISHED"
         return summary
     except KeyboardInterrupt:
@@ -364,123 +295,6 @@ def _tune_dict(tune: TuneCfg) -> dict:
     return {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in tune.__dict__.items()}
 
 
-def _fail_stale(study) -> list[int]:
-    """Fail the study's stale RUNNING trials now (dead workers of this machine, or silent past the grace period)."""
-    import warnings
-
-    import optuna
-
-    before = {t.number for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        optuna.storages.fail_stale_trials(study)
-    after = {t.number for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))}
-    return sorted(before - after)
-
-
-def _start_worker(spec: dict, worker: int, n: int, report) -> subprocess.Popen:
-    """One worker process (dies with this one); its specification goes through its stdin."""
-    from workbench import procs
-
-    p = procs.popen([sys.executable, "-m", "workbench.learn.tune", "--worker", "-"], stdin=subprocess.PIPE,
-                    stdout=subprocess.DEVNULL, stderr=None if report else subprocess.DEVNULL)
-    try:
-        p.stdin.write(json.dumps({**spec, "worker": worker, "n_trials": n}).encode("utf-8"))
-        p.stdin.close()
-    except BrokenPipeError:  # it died at once; its exit status tells
-        pass
-    return p
-
-
-def _spawn_workers(spec: dict, tune: TuneCfg, report: Callable[[str], None] | None, study) -> None:
-    """Start the worker processes with an exact share of the trials each, watch them, wait for all.
-
-    A worker killed by a signal (not by this command) has its running trial failed and queued
-    again at once, and is restarted for the trials of its share still owed (at most ``workers``
-    restarts in all). Leaving by an exception (Ctrl-C, SIGTERM) stops every worker and waits.
-    """
-    import signal as _signal
-
-    from workbench import procs
-
-    say = report or (lambda _m: None)
-    share = [tune.n_trials // tune.workers + (1 if i < tune.n_trials % tune.workers else 0) for i in range(tune.workers)]
-    slots = {i: n for i, n in enumerate(share) if n > 0}
-    running: dict[int, subprocess.Popen] = {}
-    codes: dict[int, int] = {}
-    restarts = 0
-    try:
-        for i, n in slots.items():
-            running[i] = _start_worker(spec, i, n, report)
-        while running:
-            time.sleep(0.5)
-            for i, p in list(running.items()):
-                rc = p.poll()
-                if rc is None:
-                    continue
-                del running[i]
-                if rc < 0:
-                    failed = _fail_stale(study)
-                    mine = [t for t in finished_trials(study.get_trials(deepcopy=False))
-                            if t.user_attrs.get("command") == spec["command"] and t.user_attrs.get("worker") == i]
-                    left = slots[i] - len(mine)
-                    name = _signal.Signals(-rc).name if -rc in _signal.Signals._value2member_map_ else str(-rc)
-                    say(f"worker {i} was killed ({name}); trial(s) {failed or 'none'} failed and queued again")
-                    if left > 0 and restarts < tune.workers:
-                        restarts += 1
-                        say(f"worker {i} restarted for the {left} trial(s) of its share still owed")
-                        running[i] = _start_worker(spec, i, left, report)
-                        continue
-                    if left <= 0:  # killed after its share was done (while exiting): nothing is owed
-                        say(f"worker {i} had finished its {slots[i]} trial(s); nothing owed")
-                        codes[i] = 0
-                        continue
-                codes[i] = rc
-    except BaseException:
-        procs.interrupted()
-        procs.stop(list(running.values()))
-        try:
-            _fail_stale(study)
-        except Exception:  # noqa: BLE001 - the storage itself may be what failed
-            pass
-        raise
-    bad = {i: c for i, c in codes.items() if c}
-    if bad:
-        raise StageError(f"tune worker(s) failed with exit status {bad}", hint="see the worker lines above")
-
-
-def summarise(study, baseline: set[int], elapsed_s: float = 0.0, command: str | None = None) -> dict:
-    """Counts, the best trial and one row per trial of this invocation (and the study's overall best).
-
-    This invocation's trials are those with its ``command`` id (or, without one, those not in
-    ``baseline``); a failed trial that was retried is counted by its retry.
-    """
-    import optuna
-
-    trials = study.get_trials(deepcopy=False)
-    from workbench.learn.tune_storage import retried_numbers
-
-    retried = retried_numbers(trials)
-    mine = [t for t in command_trials(trials, command, baseline) if t.number not in retried]
-    counts = {s.name: sum(1 for t in mine if t.state == s) for s in optuna.trial.TrialState}
-    complete = [t for t in trials if t.state == optuna.trial.TrialState.COMPLETE]
-    best = min(complete, key=lambda t: t.value) if complete else None
-    fails = [t.system_attrs.get("fail_reason", "?") for t in mine if t.state == optuna.trial.TrialState.FAIL]
-    rows = [{"number": t.number, "state": t.state.name, "value": t.value, "params": t.params,
-             "command": t.user_attrs.get("command"), "worker": t.user_attrs.get("worker"),
-             "retry_of": t.system_attrs.get("failed_trial"),
-             "epochs": len(t.intermediate_values), "duration_s": t.duration.total_seconds() if t.duration else None,
-             "mlflow_run_id": t.user_attrs.get("mlflow_run_id")} for t in trials]
-    best_d = None
-    if best is not None:
-        over = [f"{PARAM_KEYS.get(k, k)}={v}" for k, v in best.params.items()]
-        best_d = {"number": best.number, "value": best.value, "params": best.params, "overrides": over,
-                  "mlflow_run_id": best.user_attrs.get("mlflow_run_id")}
-    return {"study": study.study_name, "n_trials_total": len(trials), "n_trials_this_run": len(mine),
-            "counts": counts, "best": best_d, "first_failure": fails[0] if fails else None,
-            "elapsed_s": elapsed_s, "trials": rows}
-
-
 def _register_best(base: LearnConfig, tune: TuneCfg, best: dict, storage) -> str:
     """Register the best trial's model under ``tune.alias``, unless the alias already names a better trial.
 
@@ -507,52 +321,3 @@ def _register_best(base: LearnConfig, tune: TuneCfg, best: dict, storage) -> str
     return register_model(run, name, tune.alias,
                           tags={"study": tune.study, "trial": str(best["number"]), **{
                               k: run.data.tags.get(k, "") for k in ("campaign", "variant", "git_commit", "dvc_stage")}})
-
-
-def write_outputs(summary: dict, out_dir: str | Path) -> Path:
-    """``best.json`` (best trial, its ``--set`` overrides) and ``trials.csv`` in ``out_dir`` (atomically)."""
-    import csv
-    import io
-
-    from workbench.atomic import atomic_dir
-
-    with atomic_dir(out_dir) as tmp:
-        tmp = Path(tmp)
-        best = {k: summary[k] for k in ("study", "storage", "n_trials_total", "n_trials_this_run", "counts", "best")}
-        (tmp / "best.json").write_text(json.dumps(best, indent=2) + "\n", encoding="utf-8")
-        buf = io.StringIO()
-        names = sorted({k for r in summary["trials"] for k in r["params"]})
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["number", "state", "value", "epochs", "duration_s", *names, "mlflow_run_id"])
-        for r in summary["trials"]:
-            w.writerow([r["number"], r["state"], "" if r["value"] is None else r["value"], r["epochs"],
-                        "" if r["duration_s"] is None else f"{r['duration_s']:.2f}",
-                        *[r["params"].get(n, "") for n in names], r["mlflow_run_id"] or ""])
-        (tmp / "trials.csv").write_text(buf.getvalue(), encoding="utf-8")
-    return Path(out_dir)
-
-
-def _worker_main(argv: list[str]) -> int:
-    from workbench import procs
-    from workbench.console import info
-    from workbench.errors import WorkbenchError
-
-    if len(argv) != 2 or argv[0] != "--worker":
-        print("usage: python -m workbench.learn.tune --worker SPEC.json|-  (- reads the spec from stdin)",
-              file=sys.stderr)
-        return 2
-    procs.install()  # SIGTERM (also sent when the command dies) fails the running trial cleanly
-    text = sys.stdin.read() if argv[1] == "-" else Path(argv[1]).read_text(encoding="utf-8")
-    spec = json.loads(text)
-    try:
-        run_worker(spec, info)
-    except WorkbenchError as exc:
-        print(f"error: {exc.format()}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(_worker_main(sys.argv[1:]))

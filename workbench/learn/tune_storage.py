@@ -1,4 +1,10 @@
-"""Optuna storages whose trials cannot stay RUNNING forever, and a sampler seeded per trial.
+"""The study's storage: where it lives, its lock, heartbeats that fail dead workers' trials, per-trial seeds.
+
+**Where.** :func:`resolve_storage` opens the storage of a study: by default an Optuna journal file
+``.optuna/<study>.journal`` at the project root (its folder made here: this module is learn's I/O
+edge for the study's storage), a ``*.journal`` path, or any Optuna storage URL (``postgresql://...``
+for a cluster). The journal file is locked with an ``open()``-based lock (works on local disks and
+NFS alike). :func:`fail_stale` fails a study's stale RUNNING trials now.
 
 **Heartbeats.** Every worker records a heartbeat for its running trial every
 ``heartbeat_interval_s`` (Optuna's own heartbeat thread). A RUNNING trial is *stale*, and is
@@ -31,12 +37,16 @@ from __future__ import annotations
 import os
 import socket
 import time
-from typing import Any, Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
 
 from optuna.samplers import TPESampler
 from optuna.storages import JournalStorage, RDBStorage
 from optuna.storages._heartbeat import BaseHeartbeat
 from optuna.trial import TrialState
+
+if TYPE_CHECKING:
+    from workbench.learn.tune import TuneSettings
 
 HEARTBEAT_KEY = "wb:heartbeat"
 OWNER_KEY = "wb:owner"
@@ -198,3 +208,53 @@ def retried_numbers(trials) -> set[int]:
         for n in t.system_attrs.get("retry_history", []) or []:
             out.add(int(n))
     return out
+
+
+def resolve_storage(storage: str | None, study: str, tune: "TuneSettings | None" = None):
+    """An Optuna storage with heartbeats: default journal file, a ``*.journal`` path, or an Optuna storage URL.
+
+    Returns ``(storage, where)``; heartbeat interval, grace period and retries from ``tune``.
+    """
+    from optuna.storages.journal import JournalFileBackend, JournalFileOpenLock
+
+    from workbench.errors import ContractError
+    from workbench.learn.tune import TuneSettings
+    from workbench.project import project_root
+
+    tune = tune or TuneSettings()
+    beat = {"heartbeat_interval": max(1, int(tune.heartbeat_interval_s)),
+            "grace_period": max(int(tune.grace_period_s), 2 * int(tune.heartbeat_interval_s))}
+
+    if storage is None or storage.endswith(".journal") or storage.startswith("journal:"):
+        path = Path(storage.removeprefix("journal:") if storage else project_root() / ".optuna" / f"{study}.journal")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # open()-based lock: works on local disks and NFS alike, no symlink permissions needed
+        return HeartbeatJournalStorage(JournalFileBackend(str(path), lock_obj=JournalFileOpenLock(str(path))), **beat,
+                                       stale_trial_callback=retry_callback(tune.max_retry)), str(path)
+    if "://" not in storage:
+        raise ContractError(f"storage {storage!r} is neither a .journal file nor a storage URL",
+                            hint="e.g. .optuna/study.journal or postgresql://user@host/db")
+    # Several machines starting on an empty database race to create Optuna's schema (PostgreSQL
+    # then raises a unique violation on its enum types): whoever loses waits and retries once the
+    # winner's tables exist.
+    from sqlalchemy.exc import IntegrityError, ProgrammingError
+
+    from workbench.tracking import retry_race
+
+    return retry_race(lambda: HeartbeatRDBStorage(storage, **beat,
+                                                  heartbeat_stale_trial_callback=retry_callback(tune.max_retry)),
+                      (IntegrityError, ProgrammingError)), storage
+
+
+def fail_stale(study) -> list[int]:
+    """Fail the study's stale RUNNING trials now (dead workers of this machine, or silent past the grace period)."""
+    import warnings
+
+    import optuna
+
+    before = {t.number for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        optuna.storages.fail_stale_trials(study)
+    after = {t.number for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))}
+    return sorted(before - after)
