@@ -36,6 +36,22 @@ class WorkbenchError(Exception):
             msg += f" ({self.hint})"
         return " ".join(msg.split())
 
+    def located(self, *, path: str | Path | None = None, run: str | None = None,
+                where: str | None = None) -> "WorkbenchError":
+        """The same error (same class, fault and hint) with the place it lacked filled in.
+
+        For the caller that knows the file a domain check did not (a command re-raising a
+        :class:`SettingError` from the simulator with its gaits file): fields already set are kept,
+        so the place the fault was found wins. ``raise exc.located(path=p) from None``.
+        """
+        new = type(self).__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        new.path = self.path or (None if path is None else str(path))
+        new.run = self.run or run
+        new.where = self.where or where
+        new.args = (new.format(),)
+        return new
+
 
 class ContractError(WorkbenchError):
     """A file or folder breaks the data contract (manifest, columns, paths, schema version)."""

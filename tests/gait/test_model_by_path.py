@@ -100,7 +100,7 @@ def test_bad_label_is_refused_before_any_work(tmp_path, saved, capsys):
     rc = main(["optimize", "--task", "straight", "--model", str(saved), "--label", "../x", "--params",
                str(_params(tmp_path)), "--out", str(tmp_path / "g"), "--no-mlflow"])
     err = capsys.readouterr().err
-    assert rc == 2 and "--label '../x'" in err and not (tmp_path / "g").exists()
+    assert rc == 2 and "error: --label: '../x' is not a file-name-safe name" in err and not (tmp_path / "g").exists()
 
 
 @pytest.mark.slow

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from workbench.errors import DataError
+from workbench.errors import ConvergenceError, SettingError
 from workbench.gait.objectives import TaskSpec
 from workbench.gait.sensitivity import FACTORS, Factor, robot_with, run_sensitivity
 from workbench.hydro.legmodel import load_leg_model
@@ -54,9 +54,17 @@ def test_sobol_study_finds_the_only_factor_that_matters():
 
 
 def test_power_of_two_required():
-    with pytest.raises(DataError, match="power of 2"):
+    with pytest.raises(SettingError, match="power of 2"):
         run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotParams(), TaskSpec("turn", cap_s=1.0,
                         target_yaw_deg=90.0), n=6)
+
+
+def test_a_nominal_swim_that_did_not_converge_is_a_convergence_error():
+    # one fixed-point iteration per window cannot reach a residual of 1e-12 m/s: no score is a result
+    with pytest.raises(ConvergenceError, match=r"nominal robot's simulation did not converge for a, b, c"):
+        run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotParams(),
+                        TaskSpec("turn", cap_s=1.0, target_yaw_deg=90.0), n=2,
+                        settings={"max_iter": 1, "tol_mps": 1e-12})
 
 
 def test_factor_ranges_contain_the_nominal_robot():

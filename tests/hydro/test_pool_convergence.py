@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
-from workbench.errors import ModelError
+from workbench.errors import ConvergenceError, SettingError
 from workbench.virtual_lab.pool import PoolSettings, simulated_trials
 
 
@@ -38,10 +38,21 @@ def test_pool_refuses_an_unconverged_trajectory_naming_the_gait_file_and_solutio
     robot["simulation"].update(max_iter=2, tol_mps=1e-9)
     (tmp_path / "robot.yaml").write_text(yaml.safe_dump(robot))
     s = PoolSettings(models=("ef",), best=1, physics="ef", robot_params=str(tmp_path / "robot.yaml"))
-    with pytest.raises(ModelError) as err:
+    with pytest.raises(ConvergenceError) as err:
         simulated_trials(gaits, s)
     msg = str(err.value)
     assert "\n" not in msg
     assert str(gaits / "straight-ef.json") in msg and "solution rank 1" in msg and "did not converge" in msg
     residual = float(msg.split("residual ")[1].split(" m/s")[0])
     assert np.isfinite(residual) and residual > 1e-9
+
+
+def test_pool_names_the_gait_file_and_solution_of_a_bad_gait_value(tmp_path):
+    gaits = _gait_files(tmp_path / "gaits")
+    doc = json.loads((gaits / "turn-ef.json").read_text())
+    doc["solutions"][0]["params"]["frequency_hz"] = 0.0           # a setting no gait can swim with
+    (gaits / "turn-ef.json").write_text(json.dumps(doc))
+    with pytest.raises(SettingError) as err:                        # a parameter fault, not a contract fault
+        simulated_trials(gaits, PoolSettings(models=("ef",), best=1, physics="ef"))
+    assert err.value.path == str(gaits / "turn-ef.json") and err.value.where == "solution rank 1 of turn-ef"
+    assert "positive frequency" in str(err.value) and "\n" not in str(err.value)

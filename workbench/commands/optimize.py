@@ -97,7 +97,7 @@ def run(args) -> int:
 
     from workbench.atomic import atomic_files, json_text
     from workbench.console import info
-    from workbench.errors import ContractError
+    from workbench.errors import ParamsError, SettingError
     from workbench.gait.config import load_config
     from workbench.gait.export import model_source, model_source_line
     from workbench.gait.optimize import optimize_task
@@ -106,9 +106,13 @@ def run(args) -> int:
 
     cfg = load_config(args.params)
     try:
-        cfg = cfg.with_overrides(pop_size=args.pop, n_gen=args.gens, seed=args.seed).with_workers(args.workers)
-    except ValueError as exc:
-        raise ContractError(str(exc), where="command line") from None
+        cfg = cfg.with_overrides(pop_size=args.pop, n_gen=args.gens, seed=args.seed)
+    except ParamsError as exc:  # the file's value was fine, the command line's is not: name the options
+        raise SettingError(exc.fault, where="--pop/--gens/--seed", hint=exc.hint) from None
+    try:
+        cfg = cfg.with_workers(args.workers)
+    except ParamsError as exc:
+        raise SettingError(exc.fault, where="--workers", hint=exc.hint) from None
     ts = cfg.task(args.task)
     robot = load_robot(args.robot or cfg.robot, drag_json=args.drag or cfg.drag_json)
     label = _label(args.label, args.model)
@@ -193,14 +197,14 @@ def _label(label: str | None, spec: str) -> str:
     """The results' name: ``--label`` (checked: file-name safe) or one derived from the model spec."""
     import re
 
-    from workbench.errors import ContractError
+    from workbench.errors import SettingError
     from workbench.gait.export import model_label
 
     if label is None:
         return model_label(spec)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}", label):
-        raise ContractError(f"--label {label!r} is not a file-name-safe name", where="command line",
-                            hint="letters, digits, '-' and '_', e.g. lstm16")
+        raise SettingError(f"{label!r} is not a file-name-safe name", where="--label",
+                           hint="letters, digits, '-' and '_', e.g. lstm16")
     return label
 
 

@@ -33,32 +33,29 @@ def register(sub) -> None:
 
 def run(args) -> int:
     """Load the gaits, robot and leg model; run the study; write JSON and figure."""
-    import json
     from pathlib import Path
 
     from workbench.atomic import atomic_dir, check_replaceable, write_json
 
     check_replaceable(args.out, "sensitivity")  # a wrong --out is refused before the work, not after
 
-    from workbench.commands.simulate import read_gaits_file, robot_simulation_settings
+    from workbench.commands.simulate import gait_batch, read_gaits_file, robot_simulation_settings
     from workbench.console import info
+    from workbench.contract.jsonfile import read_json
     from workbench.errors import ContractError
     from workbench.gait.objectives import TaskSpec
     from workbench.gait.sensitivity import FACTORS, figure_png, run_sensitivity
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
-    from workbench.hydro.simulator import GaitBatch
 
     gaits = read_gaits_file(args.gaits, None)[: max(args.best, 2)]
-    doc = json.loads(Path(args.gaits).read_text(encoding="utf-8"))
+    doc = read_json(Path(args.gaits), "gaits file")
     task_doc = (doc.get("settings") or {}).get("task")
     if not isinstance(task_doc, dict) or "task" not in task_doc:
         raise ContractError("no settings.task (the task the gaits were optimised on)", path=args.gaits)
-    try:
-        spec = TaskSpec.from_dict(task_doc["task"], task_doc, key="settings.task", path=str(args.gaits))
-        batch = GaitBatch.from_params([p for _, p in gaits])
-    except ValueError as exc:
-        raise ContractError(str(exc), path=args.gaits) from None
+    # a bad setting or gait value is a ParamsError/SettingError naming the file and the key or gait
+    spec = TaskSpec.from_dict(task_doc["task"], task_doc, key="settings.task", path=str(args.gaits))
+    batch = gait_batch(gaits, {label: args.gaits for label, _ in gaits})
     settings = robot_simulation_settings(args.robot)
     settings["duration_s"] = spec.cap_s
     settings.update({k: v for k, v in ((doc.get("settings") or {}).get("simulation") or {}).items()

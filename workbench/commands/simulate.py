@@ -44,30 +44,44 @@ def register(sub) -> None:
 
 
 def parse_gait(tokens: list[str]) -> dict:
-    """``KEY=VALUE`` tokens -> a gait ``params`` dict (contract names)."""
-    from workbench.errors import ContractError
+    """``KEY=VALUE`` tokens -> a gait ``params`` dict (contract names); a bad token is a SettingError."""
+    from workbench.errors import SettingError
 
     params: dict = {}
     for tok in tokens:
         key, sep, value = tok.partition("=")
         if not sep or key not in _GAIT_KEYS:
-            raise ContractError(f"--gait expects KEY=VALUE with KEY in {list(_GAIT_KEYS)}, got {tok!r}")
+            raise SettingError(f"expects KEY=VALUE with KEY in {list(_GAIT_KEYS)}, got {tok!r}", where="--gait")
         try:
             nums = [float(v) for v in value.split(",")]
         except ValueError:
-            raise ContractError(f"--gait {key}: {value!r} is not a number (or list of numbers)") from None
+            raise SettingError(f"{value!r} is not a number (or list of numbers)", where=f"--gait {key}") from None
         if key == "alpha_rad":
             if len(nums) not in (1, 4):
-                raise ContractError("--gait alpha_rad takes one phase or four (LF,RF,LH,RH)")
+                raise SettingError("takes one phase or four (LF,RF,LH,RH)", where="--gait alpha_rad")
             params[key] = nums * 4 if len(nums) == 1 else nums
         elif len(nums) != 1:
-            raise ContractError(f"--gait {key} takes one number")
+            raise SettingError("takes one number", where=f"--gait {key}")
         else:
             params[key] = nums[0]
     missing = [k for k in _GAIT_KEYS if k not in params]
     if missing:
-        raise ContractError(f"--gait lacks {missing}")
+        raise SettingError(f"lacks {missing}", where="--gait")
     return params
+
+
+def gait_batch(gaits: list[tuple[str, dict]], files: dict | None = None):
+    """The :class:`GaitBatch` of labelled gaits; a bad value is a SettingError naming the gait and its file.
+
+    ``files`` maps the label of each gait read from a file to that file (the command line's have none).
+    """
+    from workbench.errors import SettingError
+    from workbench.hydro.simulator import GaitBatch
+
+    try:
+        return GaitBatch.from_params([p for _, p in gaits], labels=[label for label, _ in gaits])
+    except SettingError as exc:
+        raise exc.located(path=(files or {}).get(exc.where)) from None
 
 
 def read_gaits_file(path, ranks: list[int] | None) -> list[tuple[str, dict]]:
@@ -121,19 +135,15 @@ def run(args) -> int:
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
     from workbench.hydro.sim_report import paths_figure_png, summarise
-    from workbench.hydro.simulator import GaitBatch, simulate
+    from workbench.hydro.simulator import simulate
 
-    gaits: list[tuple[str, dict]] = []
-    if args.gaits:
-        gaits += read_gaits_file(args.gaits, args.rank)
+    gaits: list[tuple[str, dict]] = read_gaits_file(args.gaits, args.rank) if args.gaits else []
+    files = {label: args.gaits for label, _ in gaits}
     for i, tokens in enumerate(args.gait or []):
         gaits.append((f"gait {i + 1}", parse_gait(tokens)))
     if not gaits:
         raise ContractError("no gait given", hint="use --gaits FILE and/or --gait KEY=VALUE ...")
-    try:
-        batch = GaitBatch.from_params([p for _, p in gaits])
-    except ValueError as exc:
-        raise ContractError(str(exc), path=args.gaits) from None
+    batch = gait_batch(gaits, files)
     robot = load_robot(args.robot, drag_json=args.drag)
     settings = robot_simulation_settings(args.robot)
     if args.duration is not None:

@@ -34,9 +34,9 @@ class NSGA2Settings:
 
     def __post_init__(self):
         if self.pop_size < 4 or self.n_gen < 1:
-            from workbench.errors import ParamsError
+            from workbench.errors import SettingError
 
-            raise ParamsError("nsga2 needs pop_size >= 4 and n_gen >= 1", where="optimize.nsga2")
+            raise SettingError("nsga2 needs pop_size >= 4 and n_gen >= 1", where="optimize.nsga2")
 
     @classmethod
     def from_dict(cls, doc: Mapping[str, Any] | None, path: str | None = None) -> "NSGA2Settings":

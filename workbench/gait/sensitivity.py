@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from workbench.errors import DataError
+from workbench.errors import ConvergenceError, SettingError
 
 
 @dataclass(frozen=True)
@@ -129,7 +129,7 @@ def run_sensitivity(gaits, labels, leg_model, robot, task_spec, *, n: int = 16, 
     from workbench.hydro.simulator import simulate
 
     if n < 2 or n & (n - 1):
-        raise DataError(f"n = {n}: the Sobol design needs a power of 2 base samples (8, 16, 32, ...)")
+        raise SettingError(f"n = {n}: the Sobol design needs a power of 2 base samples (8, 16, 32, ...)")
     settings = dict(settings or {})
     settings.setdefault("duration_s", task_spec.cap_s)
     names = [f.name for f in factors]
@@ -143,8 +143,8 @@ def run_sensitivity(gaits, labels, leg_model, robot, task_spec, *, n: int = 16, 
     nominal, conv = scores_at({})
     if not conv.all():
         bad = [labels[i] for i in np.flatnonzero(~conv)]
-        raise DataError(f"the nominal robot's simulation did not converge for {', '.join(bad)}",
-                        hint="see docs/hydro.md (simulation settings in pipelines/robot.yaml)")
+        raise ConvergenceError(f"the nominal robot's simulation did not converge for {', '.join(bad)}",
+                               hint="see the simulation settings of the robot file, docs/hydro.md")
     rows: list[np.ndarray] = []
 
     def func(x: np.ndarray) -> np.ndarray:

@@ -91,7 +91,9 @@ class GaitSpace:
         """Decision vectors (B, n_var) -> gaits (phases wrapped into [0, 2 pi))."""
         x = np.atleast_2d(np.asarray(x, float))
         if x.shape[1] != len(self.variables):
-            raise ValueError(f"decision vectors need {len(self.variables)} entries {self.variables}, got {x.shape[1]}")
+            raise SettingError(f"decision vectors of space.extension {self.extension!r} need {len(self.variables)} "
+                               f"entries {self.variables}, got {x.shape[1]}",
+                               hint="vectors from a run with another space.extension belong to that space")
         if self.extension == "per_side_range":
             th, tk, f = x[:, 0:2][:, _SIDE], x[:, 2:4][:, _SIDE], x[:, 4]
         else:

@@ -345,8 +345,8 @@ def robot_from_dict(doc: Mapping[str, Any], *, drag_json: str | Path | None = No
                  "extra_yaw_damping_nms": drag.extra_yaw_damping_nms}
         return RobotSettings(**{k: v for k, v in given.items() if v is not None}, **_leg_kwargs(legs, path),
                              forward_drag=laws["forward"], lateral_drag=laws["lateral"], drag_source=source)
-    except ValueError as exc:
-        raise ParamsError(str(exc), path=path) from None
+    except SettingError as exc:  # a value checked by RobotSettings: the same error, with the file added
+        raise exc.located(path=path) from None
 
 
 def load_robot(path: str | Path = "pipelines/robot.yaml", *, drag_json: str | Path | None = None) -> RobotSettings:

@@ -55,26 +55,50 @@ class GaitBatch:
 
     @classmethod
     def from_arrays(cls, theta_h_min_deg, theta_k_max_deg, frequency_hz, alpha_rad, **fixed) -> "GaitBatch":
-        """Broadcast per-gait (B,) or per-leg (B, 4) values; scalars make a batch of one."""
-        alpha = np.atleast_2d(np.asarray(alpha_rad, float))
-        b = max(alpha.shape[0], np.size(frequency_hz), np.atleast_1d(theta_h_min_deg).shape[0],
-                np.atleast_1d(theta_k_max_deg).shape[0])
+        """Broadcast per-gait (B,) or per-leg (B, 4) values; scalars make a batch of one.
 
+        Values that are not numbers, or shapes that do not broadcast, are a :class:`SettingError`.
+        """
         def legs(x):
             x = np.asarray(x, float)
             if x.ndim <= 1:
                 x = np.reshape(x, (-1, 1))
             return np.ascontiguousarray(np.broadcast_to(x, (b, 4)), dtype=float)
 
-        freq = np.ascontiguousarray(np.broadcast_to(np.asarray(frequency_hz, float).reshape(-1), (b,)))
-        gaits = cls(legs(theta_h_min_deg), legs(theta_k_max_deg), freq, legs(alpha), **fixed)
+        try:
+            alpha = np.atleast_2d(np.asarray(alpha_rad, float))
+            b = max(alpha.shape[0], np.size(frequency_hz), np.atleast_1d(theta_h_min_deg).shape[0],
+                    np.atleast_1d(theta_k_max_deg).shape[0])
+            freq = np.ascontiguousarray(np.broadcast_to(np.asarray(frequency_hz, float).reshape(-1), (b,)))
+            gaits = cls(legs(theta_h_min_deg), legs(theta_k_max_deg), freq, legs(alpha), **fixed)
+        except (TypeError, ValueError) as exc:  # numpy's words for a string, a mapping or a ragged list
+            raise SettingError(f"gait parameters must be numbers (one per gait, or four per gait for the "
+                               f"legs): {exc}") from None
         if np.any(gaits.frequency_hz <= 0) or not all(np.all(np.isfinite(a)) for a in gaits._arrays()):
             raise SettingError("gait parameters must be finite with positive frequency")
         return gaits
 
     @classmethod
-    def from_params(cls, params: Sequence[Mapping], **fixed) -> "GaitBatch":
-        """From gait-file ``params`` dicts (data contract section 5)."""
+    def from_params(cls, params: Sequence[Mapping], labels: Sequence[str] | None = None, **fixed) -> "GaitBatch":
+        """From gait-file ``params`` dicts (data contract section 5).
+
+        A missing or bad value is a :class:`SettingError`; with ``labels`` (one per gait) its ``where``
+        names the first gait at fault, so a caller can add the file: ``exc.located(path=...)``.
+        """
+        try:
+            return cls._from_params(params, **fixed)
+        except SettingError as exc:
+            if labels is None:
+                raise
+            for label, p in zip(labels, params, strict=True):
+                try:
+                    cls._from_params([p], **fixed)
+                except SettingError as one:
+                    raise one.located(where=label) from None
+            raise exc.located(where=", ".join(labels)) from None
+
+    @classmethod
+    def _from_params(cls, params: Sequence[Mapping], **fixed) -> "GaitBatch":
         try:
             return cls.from_arrays(
                 [p["theta_h_min_deg"] for p in params], [p["theta_k_max_deg"] for p in params],
@@ -82,6 +106,9 @@ class GaitBatch:
                 [p["alpha_rad"] if np.ndim(p["alpha_rad"]) else [p["alpha_rad"]] * 4 for p in params], **fixed)
         except KeyError as exc:
             raise SettingError(f"gait parameters lack {exc}") from None
+        except TypeError:  # a list or a number where the params table should be
+            raise SettingError("gait parameters must be a table of theta_h_min_deg, theta_k_max_deg, "
+                               "frequency_hz and alpha_rad") from None
 
     def _arrays(self):
         return (self.theta_h_min_deg, self.theta_k_max_deg, self.frequency_hz, self.alpha_rad)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from workbench.errors import ContractError, ParamsError
+from workbench.errors import ContractError, ParamsError, SettingError
 from workbench.threads import check_setting
 
 #: model variants: recurrent backbones, a window MLP, and the EF-residual hybrid
@@ -138,8 +138,8 @@ class LearnSettings:
             raise bad("optim.lr_min", f"lr_min {o.lr_min} / lr_max {o.lr_max} inconsistent")
         try:
             check_setting(self.trainer.torch_threads)
-        except ValueError as exc:
-            raise bad("trainer.torch_threads", str(exc)) from None
+        except SettingError as exc:  # the same error, with the file and key path added
+            raise exc.located(path=path, where=f"{key}.trainer.torch_threads") from None
         fr = d.split.fractions
         if len(fr) != 3 or min(fr) < 0 or abs(sum(fr) - 1) > 1e-6 or fr[0] == 0:
             raise bad("data.split.fractions", f"{list(fr)} must be three non-negative numbers summing to 1")

@@ -29,6 +29,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from workbench.contract.columns import WRENCH_CHANNELS
+from workbench.errors import SettingError
 
 
 @dataclass(frozen=True)
@@ -51,9 +52,9 @@ class RigRanges:
         for k in ("theta_h_min_deg", "theta_k_max_deg", "frequency_hz", "phi_rad"):
             lo, hi = getattr(self, k)
             if not lo <= hi:
-                raise ValueError(f"{k}: lower bound {lo} above upper bound {hi}")
+                raise SettingError(f"{k}: lower bound {lo} above upper bound {hi}")
         if self.frequency_hz[0] <= 0 or self.cycles < 1 or not self.flow_speeds_mps or min(self.flow_speeds_mps) < 0:
-            raise ValueError("frequency must be positive, cycles >= 1, flow speeds non-negative")
+            raise SettingError("frequency must be positive, cycles >= 1, flow speeds non-negative")
 
     @classmethod
     def from_dict(cls, doc: Mapping | None, path=None) -> "RigRanges":

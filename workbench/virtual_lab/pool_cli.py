@@ -6,7 +6,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from workbench.errors import ContractError
+from workbench.errors import ParamsError, SettingError
 from workbench.virtual_lab.pool_settings import PoolSettings
 
 EXAMPLES = """\
@@ -44,6 +44,11 @@ def add_cli(subparsers) -> None:
     p.set_defaults(func=_run_cli)
 
 
+#: the option that sets each PoolSettings field (for a message about a bad value given on the command line)
+_OPTION = {"models": "--models", "best": "--best", "fps": "--fps", "seed": "--seed", "width_px": "--size",
+           "height_px": "--size"}
+
+
 def _run_cli(args) -> int:
     from workbench.console import info
     from workbench.params import load_settings
@@ -64,9 +69,13 @@ def _run_cli(args) -> int:
         try:
             w, h = (int(v) for v in args.size.lower().split("x"))
         except ValueError:
-            raise ContractError(f"--size must look like 960x540, got {args.size!r}") from None
+            raise SettingError(f"must look like 960x540, got {args.size!r}", where="--size") from None
         changes["width_px"], changes["height_px"] = w, h
-    s = replace(s, **changes)
+    try:
+        s = replace(s, **changes)
+    except ParamsError as exc:  # the file's settings were checked; the fault is in the options given
+        given = sorted({_OPTION.get(k, k) for k in changes if k != "trials_id"})
+        raise SettingError(exc.fault, where=f"command line ({', '.join(given)})", hint=exc.hint) from None
     if args.synthetic:
         trials = synthetic_trials(s)
     else:

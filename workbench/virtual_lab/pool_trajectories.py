@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from workbench.errors import ContractError, ModelError
+from workbench.errors import ContractError, ConvergenceError, ModelError, SettingError
 from workbench.virtual_lab.pool_settings import PoolSettings, model_display_label
 
 
@@ -130,7 +130,7 @@ def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None
     The simulator's settings (fixed-point scheme, tolerance, iterations) come from the robot
     file's ``simulation`` section (pipelines/robot.yaml); the duration covers the 60 s cap plus
     ``post_s``. A trajectory whose fixed-point iteration did not converge is refused with a
-    one-line ModelError naming the gait file and the solution: it is not a trial's truth.
+    one-line ConvergenceError naming the gait file and the solution: it is not a trial's truth.
     """
     try:
         from workbench.hydro.robot import RobotParams, load_robot
@@ -158,14 +158,16 @@ def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None
     leg_model = _physics(s.physics)
     made: dict[tuple[str, str, int], PoolTrial] = {}
     for key, todo in groups.items():
+        labels = [f"solution rank {rank} of {task}-{model}" for model, task, rank, _, _ in todo]
         try:
-            batch = GaitBatch.from_params([p for *_, p, _ in todo], **dict(key))
-        except (ValueError, TypeError) as exc:
-            raise ContractError(f"bad gait parameters: {exc}", path=gaits_dir) from None
+            batch = GaitBatch.from_params([p for *_, p, _ in todo], labels=labels, **dict(key))
+        except SettingError as exc:  # a bad value: the gait file and the solution at fault
+            at = labels.index(exc.where) if exc.where in labels else None
+            raise exc.located(path=todo[at][-1] if at is not None else gaits_dir) from None
         traj = simulate(batch, leg_model, robot, duration_s=CAP_S + s.post_s + 1.0, dt_s=s.sim_dt_s, **settings)
         for i, (model, task, rank, _, path) in enumerate(todo):
             if not traj.converged[i]:
-                raise ModelError(
+                raise ConvergenceError(
                     f"solution rank {rank}: the swim on '{s.physics}' physics did not converge (fixed-point "
                     f"residual {traj.residual_mps[i]:.2g} m/s, tolerance {settings.get('tol_mps', 1e-4):g}, "
                     f"{traj.iterations} leg-model calls)", path=path,
