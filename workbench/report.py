@@ -195,13 +195,15 @@ def gaits_section(datasets: Path) -> Section:
                    else f"not finished within {float(cap):g} s")
         unconv = doc.get("unconverged_gaits")
         by_task.setdefault(doc.get("task", "?"), []).append(
-            [MODEL_LABELS.get(doc.get("model", "?"), doc.get("model", "?")), str(len(doc["solutions"])),
-             _fmt(p.get("theta_h_min_deg"), 1), _fmt(p.get("theta_k_max_deg"), 1), _fmt(p.get("frequency_hz"), 3),
+            [_model_label(doc.get("model", "?")), str(len(doc["solutions"])),
+             _fmt_legs(p.get("theta_h_min_deg"), 1), _fmt_legs(p.get("theta_k_max_deg"), 1),
+             _fmt(p.get("frequency_hz"), 3),
              ", ".join(_fmt(a, 2) for a in alpha), _fmt(o.get("f1")), _fmt(o.get("f2")), f3_text,
              _fmt(best.get("score")), "-" if unconv is None else str(unconv)])
     for task, rows in by_task.items():
         names = OBJECTIVES.get(task, (("f1", ""), ("f2", ""), ("f3", "s")))
-        sec.tables.append((f"{task}: best gait of each model (datasets/gaits/{task}-*.json); S = w1 f1 + w2 f2 + w3 f3, "
+        sec.tables.append((f"{task}: best gait of each model (datasets/gaits/{task}-*.json; a -sides model's gaits "
+                           "have a joint range per side, listed LF, RF, LH, RH); S = w1 f1 + w2 f2 + w3 f3, "
                            "lower is better",
                            ["model", "gaits kept", "theta_h_min (deg)", "theta_k_max (deg)", "f (Hz)",
                             "alpha LF, RF, LH, RH (rad)"] + [f"{n} ({u})" for n, u in names]
@@ -210,6 +212,20 @@ def gaits_section(datasets: Path) -> Section:
         sec.paragraphs.append("No gaits yet.")
     sec.figures += _pngs(datasets / "gaits")
     return sec
+
+
+def _model_label(key: str) -> str:
+    """The pool's name of a gait file's model (``ef`` EF, ``lstm-sides`` FED-LSTM-sides, ...)."""
+    from workbench.virtual_lab.pool_settings import model_display_label
+
+    return model_display_label(key, MODEL_LABELS)
+
+
+def _fmt_legs(v: Any, digits: int) -> str:
+    """A gait parameter: one value, or per leg (LF, RF, LH, RH) when the legs differ."""
+    if isinstance(v, list):
+        return _fmt(float(v[0]), digits) if len(set(v)) == 1 else " / ".join(_fmt(float(x), digits) for x in v)
+    return _fmt(v, digits)
 
 
 def _trial_table(scores_dir: Path) -> tuple[str, list[str], list[list[str]]] | None:
@@ -268,9 +284,91 @@ def trials_section(datasets: Path) -> Section:
                                             else str(f) for f in failed))
         sec.paragraphs += pool_verdict(datasets, summary.parent)
         sec.figures += [p for p in _pngs(summary.parent) if "trajector" in p.name or "box" in p.name]
+    spaces = turn_spaces(datasets)
+    if spaces:
+        sec.tables.append(spaces[0])
+        sec.paragraphs += spaces[1]
     if not sec.paragraphs and not sec.figures and not sec.tables:
         sec.paragraphs.append("No trial scores yet.")
     return sec
+
+
+def _trial_key(row: dict, labels: dict[str, str]) -> str:
+    """The gait file's model of a scored trial: from the pool's trial id (``<model>-<task>-<rank>``), else the label."""
+    tid, tail = row.get("trial_id", ""), f"-{row.get('task')}-{row.get('solution')}"
+    if tid.endswith(tail) and len(tid) > len(tail):
+        return tid[: -len(tail)]
+    by_label = {v: k for k, v in labels.items()}
+    return by_label.get(row.get("model", ""), str(row.get("model", "")).lower())
+
+
+def turn_spaces(datasets: Path) -> tuple[tuple[str, list[str], list[list[str]]], list[str]] | None:
+    """Turn trials of every pool folder by gait space (the paper's, per_side_range) and model, beside the predictions.
+
+    Per (gait space, model): trials finished within 60 s, mean pool time (60 s = not finished), mean
+    scored turn radius, and the mean time the model predicted for the same gaits (the gait file's f3).
+    Returns the table and one paragraph per extended space (None when no gait space but the paper's was swum).
+    """
+    groups: dict[tuple[str, str], dict] = {}
+    for summary in sorted((datasets / "scores").glob("*/summary.json")):
+        truth = _load_json(datasets / "raw" / summary.parent.name / "truth.json") or {}
+        labels = dict(MODEL_LABELS) | ((truth.get("settings") or {}).get("model_labels") or {})
+        for r in _read_scores(summary.parent):
+            if r.get("task") != "turn" or not r.get("time_s"):
+                continue
+            key = _trial_key(r, labels)
+            gait = _load_json(datasets / "gaits" / f"turn-{key}.json") or {}
+            space = str(gait.get("gait_space") or "paper")
+            g = groups.setdefault((space, key), {"label": r.get("model", key), "time": [], "done": 0, "radius": [],
+                                                 "predicted": [], "pool": summary.parent.name})
+            g["time"].append(float(r["time_s"]))
+            g["done"] += str(r.get("completed")).lower() == "true"
+            if r.get("radius_m"):
+                g["radius"].append(float(r["radius_m"]))
+            sols = {int(x.get("rank", 0)): x for x in gait.get("solutions") or []}
+            sol = sols.get(int(r["solution"])) if str(r.get("solution", "")).isdigit() else None
+            f3 = ((sol or {}).get("objectives") or {}).get("f3")
+            g["predicted"].append(float(f3) if isinstance(f3, (int, float)) else None)
+    if not any(space != "paper" for space, _ in groups):
+        return None
+
+    def mean(v):
+        return sum(v) / len(v) if v else None
+
+    rows, notes = [], []
+    order = sorted(groups, key=lambda k: (k[0] != "paper", k[0], k[1]))
+    for space, key in order:
+        g = groups[(space, key)]
+        pred = None if None in g["predicted"] else mean(g["predicted"])
+        t = mean(g["time"])
+        rows.append([space, g["label"], f"{g['done']}/{len(g['time'])}", _fmt(t, 1), _fmt(mean(g["radius"]), 3),
+                     _fmt(pred, 1), "-" if pred is None else f"{t - pred:+.1f}"])
+    for space in sorted({s for s, _ in groups if s != "paper"}):
+        mine = {k: groups[(s, k)] for s, k in groups if s == space}
+        text = "; ".join(f"{g['label']} {g['done']}/{len(g['time'])} finished, mean {mean(g['time']):.1f} s"
+                         for g in mine.values())
+        paper_done = sum(g["done"] for (s, _), g in groups.items() if s == "paper")
+        paper_n = sum(len(g["time"]) for (s, _), g in groups.items() if s == "paper")
+        ef = next((g for k, g in mine.items() if k.startswith("ef")), None)
+        ls = next((g for k, g in mine.items() if k.startswith("lstm") and not k[4:5].isdigit()), None)
+        verdict = ""
+        if ef and ls:
+            te, tl = mean(ef["time"]), mean(ls["time"])
+            verdict = (" Neither model's gaits finished." if not (ef["done"] or ls["done"]) else
+                       f" {ls['label']} gaits {'beat' if tl < te else 'do not beat'} {ef['label']} gaits on the "
+                       f"virtual truth ({tl:.1f} s against {te:.1f} s).")
+            pe, pl = (None if None in g["predicted"] else mean(g["predicted"]) for g in (ef, ls))
+            if pe is not None and pl is not None:
+                closer = ls if abs(tl - pl) < abs(te - pe) else ef
+                verdict += (f" Predicted by their own models: {ls['label']} {pl:.1f} s, {ef['label']} {pe:.1f} s "
+                            f"(pool minus prediction {tl - pl:+.1f} s and {te - pe:+.1f} s): the "
+                            f"{closer['label']} prediction is the closer one on these gaits.")
+        notes.append(f"**turn in the {space} gait space** (pool folder {next(iter(mine.values()))['pool']}): "
+                     f"{text} (the paper's space: {paper_done}/{paper_n} turn trials finished).{verdict}")
+    return (("turn: the paper's gait space beside its extensions (virtual pool, truth physics, scored from video; "
+             "60 s = not finished; predicted: the model's own time for the same gaits, gait file f3)",
+             ["gait space", "model", "finished", "mean pool time (s)", "mean turn radius (m)", "predicted time (s)",
+              "pool minus predicted (s)"], rows), notes)
 
 
 #: the trials' protocol (data contract section 2): what a gait file's task must match to be comparable

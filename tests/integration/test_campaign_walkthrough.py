@@ -36,16 +36,17 @@ ALL_STAGES = {
     "virtual_lab_tunnel", "virtual_lab_towing", "ingest_tunnel@demo-tunnel", "ingest_towing@demo-towing",
     "interpolate@demo-tunnel", "fit_drag@demo-towing", "train", "train_16", "tune", "evaluate",
     "optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight", "optimize_lstm@turn",
-    "optimize_lstm16@straight", "optimize_lstm16@turn",
-    "virtual_pool", "score_trials", "sensitivity", "diagnose", "diagnose_trajectory", "report",
-    "train_ensemble", "plan_campaign",
+    "optimize_lstm16@straight", "optimize_lstm16@turn", "optimize_ef_sides", "optimize_lstm_sides",
+    "virtual_pool", "score_trials", "virtual_pool_sides", "score_trials_sides", "sensitivity", "diagnose",
+    "diagnose_trajectory", "report", "train_ensemble", "plan_campaign",
 }
 # What a new tunnel campaign must rerun: its own ingest and interpolation, the learned models and
 # their evaluation, and what consumes the retrained model (LSTM gaits -> pool -> scores -> report).
 DEPENDENT = {
     f"ingest_tunnel@{NEW}", f"interpolate@{NEW}", "train", "train_16", "tune", "evaluate",
     "optimize_lstm@straight", "optimize_lstm@turn", "optimize_lstm16@straight", "optimize_lstm16@turn",
-    "virtual_pool", "score_trials", "diagnose_trajectory", "report", "train_ensemble", "plan_campaign",
+    "optimize_lstm_sides", "virtual_pool", "score_trials", "virtual_pool_sides", "score_trials_sides",
+    "diagnose_trajectory", "report", "train_ensemble", "plan_campaign",
 }
 
 SMALL_GRID = {"theta_h_min_deg": [10.0, -50.0], "theta_k_max_deg": [-20.0, -60.0],
@@ -224,8 +225,9 @@ def test_metrics_plots_and_experiments(project):
                project, timeout=1800)
     assert _ran(out) == {"optimize_ef@straight", "optimize_ef@turn", "optimize_lstm@straight",
                          "optimize_lstm@turn", "optimize_lstm16@straight", "optimize_lstm16@turn",
-                         "virtual_pool", "score_trials", "sensitivity", "diagnose_trajectory", "report",
-                         "plan_campaign"}, out[-3000:]
+                         "optimize_ef_sides", "optimize_lstm_sides",  # gait_sides.yaml extends gait.yaml
+                         "virtual_pool", "score_trials", "virtual_pool_sides", "score_trials_sides",
+                         "sensitivity", "diagnose_trajectory", "report", "plan_campaign"}, out[-3000:]
     table = _run(["dvc", "exp", "show", "--csv"], project, stdout_only=True)
     header, *rows = list(csv.reader(io.StringIO(table.strip())))  # quoted values hold commas (lists)
     col = header.index("optimize.nsga2.n_gen")
