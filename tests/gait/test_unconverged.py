@@ -73,3 +73,34 @@ def test_unconverged_gaits_are_penalised_counted_and_never_retained(robot):
     problem._evaluate(x, o)
     assert o["G"][0, 0] <= 0 < o["G"][1, 0]
     assert problem.log.unconverged == 1
+
+
+def test_an_unconverged_gait_never_reaches_the_gait_file_or_a_figure(robot):
+    """Fewer converged gaits than ``retain``: the gait file holds fewer gaits, none unconverged; none converged: error.
+
+    Issue 14, done when: no gait file or report figure comes from an unconverged trajectory. Before,
+    the best unconverged gaits filled the file up to ``retain``, marked ``converged: false``, and the
+    trajectories figure drew their swims.
+    """
+    import pytest
+
+    from workbench.errors import ConvergenceError
+    from workbench.gait.space import GaitSpace
+
+    def cfg(f_lo):
+        return OptimizeConfig(tasks={"straight": TaskSettings(SPEC, (0.5, 1.0, 6.0))}, retain=8,
+                              space=GaitSpace(frequency_hz=(f_lo, 0.65)),
+                              nsga2=NSGA2Settings(pop_size=8, n_gen=1, seed=2), simulation=SimSettings())
+
+    model = _StiffAtHighFrequency()
+    out = optimize_task(cfg(0.3), "straight", model, robot, model_label="stiff", plots=True)
+    slow = out.result.x[:, 2] <= 0.45
+    assert 0 < slow.sum() < 8                                 # some of the population beat fast, some slow
+    doc = json.loads(json.dumps(out.gait_doc))
+    assert all(s["converged"] and s["params"]["frequency_hz"] <= 0.45 for s in doc["solutions"])
+    assert len(doc["solutions"]) == slow.sum() == out.metrics["evaluations"] - out.metrics["dropped_unconverged"]
+    assert out.metrics["retained_unconverged"] == 0 and out.trajectories.converged.all()
+    assert len(out.trajectories) == len(doc["solutions"]) == len(out.controller_doc["gaits"])
+    with pytest.raises(ConvergenceError, match="none of the 8 best straight gaits") as err:
+        optimize_task(cfg(0.5), "straight", model, robot, model_label="stiff", plots=False)
+    assert "\n" not in str(err.value)

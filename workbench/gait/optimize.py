@@ -98,6 +98,28 @@ def _rows(traj: Trajectory, order: np.ndarray) -> Trajectory:
     return replace(traj, gaits=traj.gaits.rows(order), **{k: getattr(traj, k)[order] for k in fields})
 
 
+def _converged_only(retained: OptimizeResult, traj: Trajectory, task: str,
+                    model_label: str) -> tuple[OptimizeResult, Trajectory, int]:
+    """The retained gaits whose simulations converged (and their trajectories), and how many were dropped.
+
+    A gait whose fixed point did not converge has no trustworthy objectives or path: it never
+    reaches the gait file, the controller file or a figure. None converged is a ConvergenceError.
+    """
+    from workbench.errors import ConvergenceError
+
+    ok = np.asarray(retained.converged, bool)
+    if not ok.any():
+        raise ConvergenceError(f"none of the {len(ok)} best {task} gaits' simulations with model '{model_label}' "
+                               "converged: there is no gait to keep",
+                               hint="see the unconverged count per generation; docs/hydro.md (simulation settings)")
+    if ok.all():
+        return retained, traj, 0
+    keep = np.flatnonzero(ok)
+    kept = OptimizeResult(retained.x[keep], retained.f[keep], retained.s[keep], retained.history,
+                          retained.evaluations, retained.seconds, retained.method, ok[keep])
+    return kept, _rows(traj, keep), int((~ok).sum())
+
+
 def optimize_task(cfg: OptimizeConfig, task: str, leg_model: LegForceModel, robot: RobotParams, *,
                   model_label: str, model_spec: str | None = None,
                   on_generation: Callable[[Generation], None] | None = None, plots: bool = True,
@@ -148,6 +170,7 @@ def _search(cfg: OptimizeConfig, ts, task: str, problem: GaitProblem, robot: Rob
         f_again, traj = problem.evaluate_gaits(problem.space.gaits(retained.x))
         resim = relative_difference(f_again, retained.f)
         retained.converged = retained.converged & traj.converged
+    retained, traj, dropped = _converged_only(retained, traj, task, model_label)
     gaits = problem.space.gaits(retained.x)
     seconds = time.perf_counter() - t0
     log = problem.log
@@ -168,7 +191,7 @@ def _search(cfg: OptimizeConfig, ts, task: str, problem: GaitProblem, robot: Rob
         "hypervolume": hypervolume(front, np.asarray(ts.hv_reference)), "front_size": int(len(front)),
         "evaluations": int(result.evaluations), "generations": len(result.history), "seconds": seconds,
         "simulation_seconds": log.seconds, "unconverged_gaits": int(log.unconverged), "simulated_gaits": int(log.gaits),
-        "retained_unconverged": int((~retained.converged).sum()),
+        "retained_unconverged": int((~retained.converged).sum()), "dropped_unconverged": dropped,
         "resim_max_rel_diff": resim, "tabulation": dict(log.table), **verify,
     }
     outcome = GaitOutcome(task, model_label, result, retained, traj, gait_doc, ctrl,
@@ -177,7 +200,10 @@ def _search(cfg: OptimizeConfig, ts, task: str, problem: GaitProblem, robot: Rob
         from workbench.gait.plots import history_png, pareto_png, trajectories_png
 
         title = f"{task} - {model_label}"
-        outcome.pngs = {"pareto.png": pareto_png(result.f, len(retained.s), ts.spec, f"final population: {title}"),
+        ok = result.converged  # unconverged gaits have no trustworthy objectives: not drawn (counted in the title)
+        left_out = f" ({int((~ok).sum())} unconverged not drawn)" if not ok.all() else ""
+        outcome.pngs = {"pareto.png": pareto_png(result.f[ok], min(len(retained.s), int(ok.sum())), ts.spec,
+                                                 f"final population: {title}{left_out}"),
                         "hypervolume.png": history_png(result.history, f"NSGA-II: {title}"),
                         "trajectories.png": trajectories_png(traj, ts.spec, f"best {len(retained.s)}: {title}")}
     return outcome
