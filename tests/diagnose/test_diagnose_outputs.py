@@ -43,6 +43,26 @@ def test_diagnosis_json_follows_the_contract(pair_diagnosis):
 
 
 @pytest.mark.slow
+def test_report_is_returned_as_text_and_png_bytes_not_written(pair_diagnosis, tmp_path, monkeypatch):
+    import re
+
+    from workbench.diagnose.report import render_report
+
+    monkeypatch.chdir(tmp_path)
+    files = render_report(pair_diagnosis)
+    assert list(tmp_path.iterdir()) == []                      # nothing written
+    md = files["report.md"]
+    assert isinstance(md, str) and md.startswith("# Diagnosis of `ef`")
+    links = re.findall(r"!\[[^]]*\]\(([^)]+)\)", md)
+    pngs = {k for k, v in files.items() if k != "report.md"}
+    # every figure the text links is returned, and every returned figure is linked, as a whole PNG
+    assert set(links) == pngs >= {"figures/spectra.png", "figures/effect_servo_lag.png", "figures/effect_sensor_drift.png"}
+    for name in pngs:
+        assert files[name][:8] == b"\x89PNG\r\n\x1a\n" and files[name][-8:-4] == b"IEND"
+    assert set(render_report(pair_diagnosis, figures=False)) == {"report.md"}
+
+
+@pytest.mark.slow
 def test_augmented_model_is_a_leg_force_model_and_reproduces_mse_after(pair_diagnosis, tmp_path):
     d = pair_diagnosis
     aug = d.augmented

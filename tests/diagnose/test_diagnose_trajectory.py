@@ -8,12 +8,8 @@ import numpy as np
 import polars as pl
 import pytest
 
-from workbench.diagnose.trajectory import (
-    TrajectorySettings,
-    diagnose_trajectories,
-    read_tracks,
-    simulate_tracks,
-)
+from workbench.commands.diagnose_trajectory import read_track_gaits, read_tracks
+from workbench.diagnose.trajectory import TrajectorySettings, diagnose_trajectories, simulate_tracks
 from workbench.hydro.ef import EmpiricalFormula
 from workbench.hydro.robot import RobotParams
 from workbench.hydro.simulator import GaitBatch, simulate
@@ -62,11 +58,13 @@ def _write_trials(root, current=(0.0, 0.0), yaw_dps=0.0, seed=0):
     return root, gaits_dir
 
 
+@pytest.mark.slow  # swims five gaits for 40 s: 15-23 s on the loaded 2-core machine
 @pytest.mark.parametrize("current,yaw", [((0.03, -0.02), 0.0), ((0.0, 0.0), 1.5), ((0.02, 0.0), -1.0)])
 def test_planted_current_and_yaw_drift_are_recovered(tmp_path, current, yaw):
     scores, gaits = _write_trials(tmp_path, current, yaw)
     tracks = read_tracks(scores)
-    sims = simulate_tracks(tracks, gaits, EmpiricalFormula(), RobotParams(), TrajectorySettings())
+    sims = simulate_tracks(tracks, read_track_gaits(gaits, tracks), EmpiricalFormula(), RobotParams(),
+                           TrajectorySettings())
     d = diagnose_trajectories(tracks, sims, "ef")
     names = {e["name"]: e for e in d.effects}
     assert ("current" in names) == bool(np.any(current))
@@ -84,15 +82,18 @@ def test_planted_current_and_yaw_drift_are_recovered(tmp_path, current, yaw):
         assert j["rms_position_error_m"]["after"] < 0.3 * j["rms_position_error_m"]["before"]
 
 
+@pytest.mark.slow  # swims five gaits for 40 s: 15-23 s on the loaded 2-core machine
 def test_nothing_claimed_when_the_simulator_is_right(tmp_path):
     scores, gaits = _write_trials(tmp_path)
     tracks = read_tracks(scores)
-    sims = simulate_tracks(tracks, gaits, EmpiricalFormula(), RobotParams(), TrajectorySettings())
+    sims = simulate_tracks(tracks, read_track_gaits(gaits, tracks), EmpiricalFormula(), RobotParams(),
+                           TrajectorySettings())
     d = diagnose_trajectories(tracks, sims, "ef")
     assert d.effects == [] and d.unexplained == []
     assert d.to_json()["rms_position_error_m"]["before"] < 0.02
 
 
+@pytest.mark.slow  # swims five gaits for 40 s: 15-23 s on the loaded 2-core machine
 def test_cli_trajectory_level(tmp_path):
     from workbench.cli import main
 
@@ -103,3 +104,23 @@ def test_cli_trajectory_level(tmp_path):
     assert [e["name"] for e in doc["effects"]] == ["current"]
     assert doc["rms_position_error_m"]["after"] < doc["rms_position_error_m"]["before"]
     assert (out / "trajectory_errors.png").stat().st_size > 1000
+
+
+def test_cli_names_a_missing_gait_file_before_any_swim(tmp_path, capsys):
+    """Bad input: the gait file a trial needs is not there -> one line naming it, exit 2, nothing written."""
+    from workbench.cli import main
+
+    scores = tmp_path / "scores"
+    (scores / "trajectories").mkdir(parents=True)
+    t = np.arange(0, 2.0, 0.1)
+    pl.DataFrame({"time_s": t, "X_m": 0 * t, "Y_m": 0.05 * t, "heading_change_deg": 0 * t}).write_parquet(
+        scores / "trajectories" / "t0.parquet")
+    pl.DataFrame([{"trial_id": "t0", "model": "FED-LSTM-16", "solution": 1, "task": "turn"}]).write_csv(
+        scores / "scores.csv")
+    (tmp_path / "gaits").mkdir()
+    out = tmp_path / "out"
+    assert main(["diagnose", "--trials", str(scores), "--gaits", str(tmp_path / "gaits"), "--out", str(out),
+                 "--no-mlflow"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(tmp_path / "gaits" / "turn-lstm16.json") in err[0] and "not found" in err[0]
+    assert not out.exists()

@@ -22,11 +22,11 @@ import numpy as np
 import polars as pl
 import pytest
 
+from workbench.commands.diagnose_trajectory import read_track_gaits, read_tracks
 from workbench.diagnose.trajectory import (
     TrajectorySettings,
     diagnose_trajectories,
     errors_table,
-    read_tracks,
     reference_tracks,
     simulate_tracks,
     trajectory_errors,
@@ -97,7 +97,7 @@ def ef_swims(tmp_path_factory):
 
     clean = _copy(tmp_path_factory.mktemp("clean") / "pool")
     tracks = read_tracks(clean)
-    sims = simulate_tracks(tracks, ROOT / "datasets" / "gaits", EmpiricalFormula(),
+    sims = simulate_tracks(tracks, read_track_gaits(ROOT / "datasets" / "gaits", tracks), EmpiricalFormula(),
                            load_robot(ROOT / "pipelines" / "robot.yaml"), TrajectorySettings())
     assert all(s.converged for s in sims)
     return clean, sims

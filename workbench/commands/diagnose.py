@@ -192,6 +192,19 @@ def _readable(folder) -> None:
             os.chmod(os.path.join(root, f), 0o666 & ~mask)
 
 
+def _write_files(folder, files: dict) -> None:
+    """``{relative name: text or bytes}`` into ``folder`` (an atomic temp folder), sub-folders made as needed."""
+    from pathlib import Path
+
+    for name, data in files.items():
+        path = Path(folder) / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if isinstance(data, bytes):
+            path.write_bytes(data)
+        else:
+            path.write_text(data, encoding="utf-8")
+
+
 def run(args) -> int:
     """Diagnose, then write diagnosis.json, augmented_model.json and the report into OUT atomically."""
     import dataclasses
@@ -239,12 +252,13 @@ def run(args) -> int:
             if e["name"] in truth:
                 e["virtual_truth"] = truth[e["name"]]
     out = Path(args.out)
-    from workbench.diagnose.report import write_report
+    from workbench.diagnose.report import render_report
 
-    with atomic_dir(out) as tmp:
+    report = render_report(d, figures=not args.no_figures, truth=truth)
+    with atomic_dir(out) as tmp:  # diagnosis, augmented model, report and figures: one set
         write_json(tmp / "diagnosis.json", doc)
         d.augmented.save(tmp / "augmented_model.json")
-        write_report(d, tmp, figures=not args.no_figures, truth=truth)
+        _write_files(tmp, report)
         _readable(tmp)
     for e in d.effects:
         params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items() if isinstance(v, float))
@@ -280,14 +294,10 @@ def _run_trajectories(args, t0: float) -> int:
     import time
     from pathlib import Path
 
+    from workbench.commands.diagnose_trajectory import read_track_gaits, read_tracks
     from workbench.commands.simulate import robot_simulation_settings
     from workbench.console import info
-    from workbench.diagnose.trajectory import (
-        TrajectorySettings,
-        diagnose_trajectories,
-        read_tracks,
-        reference_tracks,
-    )
+    from workbench.diagnose.trajectory import TrajectorySettings, diagnose_trajectories, reference_tracks
     from workbench.hydro.robot import RobotParams, load_robot
     from workbench.params import load_settings
 
@@ -298,11 +308,12 @@ def _run_trajectories(args, t0: float) -> int:
         robot = load_robot(args.robot)
         sim_kw = robot_simulation_settings(args.robot)
     tracks = read_tracks(args.trials, wall_margin_m=settings.wall_margin_m)
+    gaits = read_track_gaits(args.gaits, tracks)  # each trial's gait, before any model is loaded
     cut = [tr.trial_id for tr in tracks if tr.cut_at_wall_s is not None]
     info(f"trajectory level on {args.trials}: {len(tracks)} trials" + (f" ({len(cut)} cut where the robot reached "
                                                                         f"the wall: {', '.join(cut)})" if cut else ""))
     specs = list(args.models or [args.model])
-    models, runs, diagnoses = _swim_models(specs, tracks, args.gaits, robot, settings, sim_kw)
+    models, runs, diagnoses = _swim_models(specs, tracks, gaits, robot, settings, sim_kw)
     ordered = _in_given_order(specs, models)
     ref_doc = None
     if args.reference:
@@ -355,6 +366,7 @@ def _swim_model(spec: str, tracks, gaits, robot, settings, sim_kw: dict, warm):
     """One model's swims of the tracked trials, their errors and trajectory diagnosis (None if it failed)."""
     import time
 
+    from workbench.commands.diagnose_trajectory import tabulator
     from workbench.console import info
     from workbench.diagnose.augmented import AugmentedLegModel
     from workbench.diagnose.trajectory import diagnose_trajectories, simulate_tracks, trajectory_errors
@@ -366,7 +378,7 @@ def _swim_model(spec: str, tracks, gaits, robot, settings, sim_kw: dict, warm):
     if isinstance(model, AugmentedLegModel):
         model = model.physical()     # a swimming robot meets no tunnel blockage and no load-cell drift
     ts = time.perf_counter()
-    sims = simulate_tracks(tracks, gaits, model, robot, settings, sim_kw, warm=warm)
+    sims = simulate_tracks(tracks, gaits, model, robot, settings, sim_kw, warm=warm, tabulate=tabulator)
     sim_s = time.perf_counter() - ts
     err = trajectory_errors(tracks, sims)
     err.update({"spec": spec, "sim_seconds": round(sim_s, 1)})
@@ -402,6 +414,7 @@ def _write_trajectory_outputs(args, doc: dict, main, ref_doc: dict | None, track
     from workbench.atomic import atomic_dir, write_json
     from workbench.diagnose.trajectory import fig_errors
 
+    png = None if args.no_figures else fig_errors(tracks, runs, ordered)
     with atomic_dir(Path(args.out)) as tmp:
         write_json(tmp / "trajectory_errors.json", doc)
         if main is not None:
@@ -410,8 +423,8 @@ def _write_trajectory_outputs(args, doc: dict, main, ref_doc: dict | None, track
             write_json(tmp / "trajectory_diagnosis.json", dj)
         if ref_doc is not None:
             write_json(tmp / "trajectory_diagnosis_reference.json", ref_doc)
-        if not args.no_figures:
-            fig_errors(tracks, runs, ordered, tmp / "trajectory_errors.png")
+        if png is not None:
+            (tmp / "trajectory_errors.png").write_bytes(png)
         _readable(tmp)
 
 

@@ -1,12 +1,13 @@
 """The readable diagnosis: ``report.md`` with PNG figures (residuals, spectra, correlations, evidence per claim).
 
 Only the figure and text rendering lives here; the numbers come from a
-:class:`~workbench.diagnose.loop.Diagnosis`. The caller decides where the files go.
+:class:`~workbench.diagnose.loop.Diagnosis`. Nothing is written: :func:`render_report` returns the
+files as ``{relative name: text or PNG bytes}`` and the ``diagnose`` command writes them as one set.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+import io
 
 import numpy as np
 
@@ -24,6 +25,14 @@ def _plt():
     return plt
 
 
+def _png(fig, plt) -> bytes:
+    """The figure as PNG bytes (as ``savefig(path, dpi=90)`` would write them), then closed."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    return buf.getvalue()
+
+
 def _example_runs(d, n: int) -> list[int]:
     """Held-out runs with the largest error removed (the clearest before/after), at most ``n``."""
     pairs = []
@@ -37,12 +46,12 @@ def _example_runs(d, n: int) -> list[int]:
     return [i for _, i in pairs[:n]]
 
 
-def fig_residuals(d, path: Path, n_runs: int = 3) -> None:
+def fig_residuals(d, n_runs: int = 3) -> bytes | None:
     """Measured, model and augmented model on example held-out runs, every channel."""
     plt = _plt()
     runs = _example_runs(d, n_runs)
     if not runs:
-        return
+        return None
     fig, axes = plt.subplots(6, len(runs), figsize=(4.2 * len(runs), 11), sharex="col", squeeze=False)
     for j, i in enumerate(runs):
         rb, ra = d.residuals_before[i], d.residuals_after[i]
@@ -61,11 +70,10 @@ def fig_residuals(d, path: Path, n_runs: int = 3) -> None:
     axes[0, 0].legend(fontsize=7, loc="upper right")
     fig.suptitle("Held-out runs: measured, diagnosed model, augmented model (grey: not analysed)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return _png(fig, plt)
 
 
-def fig_spectra(d, path: Path) -> None:
+def fig_spectra(d) -> bytes:
     """Spectrum of the residual's non-stroke-locked part, before and after, with lines and gait harmonics."""
     plt = _plt()
     eb, ea = d.evidence_before, d.evidence_after
@@ -90,11 +98,10 @@ def fig_spectra(d, path: Path) -> None:
     fig.suptitle("Welch spectrum of the residual less its stroke-locked part (orange: lines; grey: harmonics "
                  f"of {gait[0] if gait else '?'} Hz)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return _png(fig, plt)
 
 
-def fig_correlations(d, path: Path) -> None:
+def fig_correlations(d) -> bytes:
     """Autocorrelation and cross-correlation with the model force's rate, before and after, with bounds."""
     plt = _plt()
     eb, ea = d.evidence_before, d.evidence_after
@@ -117,11 +124,10 @@ def fig_correlations(d, path: Path) -> None:
     fig.suptitle("Whiteness (bounds: white noise) and cross-correlation with the model force's rate "
                  "(bands: Bartlett bounds, 99 %)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return _png(fig, plt)
 
 
-def fig_dependence(d, path: Path) -> None:
+def fig_dependence(d) -> bytes:
     """Residual against flow speed, hip angle, stroke phase and time in the run."""
     plt = _plt()
     eb, ea = d.evidence_before, d.evidence_after
@@ -152,11 +158,10 @@ def fig_dependence(d, path: Path) -> None:
     axes[3].set_ylabel("t of the within-run trend")
     fig.suptitle("Dependence of the residual (solid / red: before, dashed / blue: after)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return _png(fig, plt)
 
 
-def fig_effect(d, eff, path: Path) -> None:
+def fig_effect(d, eff) -> bytes:
     """One claimed effect: its search profile (nonlinear) and the held-out error it removes per channel."""
     plt = _plt()
     prof = d.profiles.get(eff.name)
@@ -178,37 +183,7 @@ def fig_effect(d, eff, path: Path) -> None:
     params = ", ".join(f"{k} = {v:.4g}" for k, v in eff.params.items() if isinstance(v, float))
     fig.suptitle(f"{eff.name}: {params}", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def fig_trajectories(tracks, sims, d, path: Path) -> None:
-    """Tracked paths against the simulated ones, before and after the trajectory effects (trial frames)."""
-    from workbench.diagnose.trajectory import apply_effects
-
-    plt = _plt()
-    n = len(tracks)
-    cols = min(n, 4)
-    rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.6 * rows), squeeze=False)
-    p = d.params
-    for ax, tr, sim in zip(axes.ravel(), tracks, sims, strict=False):
-        before, _ = apply_effects(sim, tr.t_s, tr.frame_angle_rad)
-        after, _ = apply_effects(sim, tr.t_s, tr.frame_angle_rad, p.get("yaw_rate_rps", 0.0),
-                                 p.get("current_mps", (0.0, 0.0)))
-        ax.plot(tr.xy_m[:, 0], tr.xy_m[:, 1], color="0.2", lw=1.4, label="tracked")
-        ax.plot(before[:, 0], before[:, 1], color="tab:red", lw=1, label="simulated")
-        ax.plot(after[:, 0], after[:, 1], color="tab:blue", lw=1, ls="--", label="+ effects")
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.set_title(f"{tr.trial_id} ({tr.model}, {tr.task})", fontsize=8)
-        ax.set_xlabel("X (m)")
-    for ax in axes.ravel()[n:]:
-        ax.axis("off")
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle("Trials in their own frame: tracked, simulated, simulated with the trajectory effects")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return _png(fig, plt)
 
 
 def _fmt(v) -> str:
@@ -293,34 +268,24 @@ def markdown(d, figures: dict[str, str], truth: dict | None = None) -> str:
     return "\n".join(lines)
 
 
-def write_report(d, out_dir: Path, figures: bool = True, truth: dict | None = None) -> list[Path]:
-    """Write ``report.md`` and its figures into ``out_dir``; returns the files written.
+def render_report(d, figures: bool = True, truth: dict | None = None) -> dict[str, str | bytes]:
+    """``report.md`` and its figures as ``{name relative to the output folder: text or PNG bytes}``.
 
-    ``truth``: for a virtual campaign, the values its ground truth gives each effect's parameters
-    (:func:`workbench.diagnose.library.truth_reference`), shown beside the fitted ones.
+    ``figures=False``: the text alone. ``truth``: for a virtual campaign, the values its ground
+    truth gives each effect's parameters (:func:`workbench.diagnose.library.truth_reference`),
+    shown beside the fitted ones. The ``diagnose`` command writes the files atomically as one set.
     """
-    out_dir = Path(out_dir)
-    fig_dir = out_dir / "figures"
-    fig_dir.mkdir(parents=True, exist_ok=True)
     made: dict[str, str] = {}
-    written: list[Path] = []
+    files: dict[str, str | bytes] = {}
     if figures:
-        for key, fn in (("residuals", fig_residuals), ("spectra", fig_spectra), ("correlations", fig_correlations),
-                        ("dependence", fig_dependence)):
-            p = fig_dir / f"{key}.png"
-            if key == "residuals":
-                fn(d, p, d.settings.report.example_runs)
-            else:
-                fn(d, p)
-            if p.exists():
-                made[key] = f"figures/{p.name}"
-                written.append(p)
+        pngs = [("residuals", fig_residuals(d, d.settings.report.example_runs)), ("spectra", fig_spectra(d)),
+                ("correlations", fig_correlations(d)), ("dependence", fig_dependence(d))]
+        for key, png in pngs:
+            if png is not None:
+                made[key] = f"figures/{key}.png"
+                files[made[key]] = png
         for e in d.effects:
-            p = fig_dir / f"effect_{e.name}.png"
-            fig_effect(d, e, p)
-            made[e.name] = f"figures/{p.name}"
-            written.append(p)
-    md = out_dir / "report.md"
-    md.write_text(markdown(d, made, truth), encoding="utf-8")
-    written.append(md)
-    return written
+            made[e.name] = f"figures/effect_{e.name}.png"
+            files[made[e.name]] = fig_effect(d, e)
+    files["report.md"] = markdown(d, made, truth)
+    return files

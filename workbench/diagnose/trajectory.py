@@ -5,7 +5,10 @@ Each scored trial (``score-trials``: ``trajectories/<trial_id>.parquet`` in the 
 (:func:`workbench.hydro.simulator.simulate`) with its gait from ``<task>-<model>.json`` and a
 leg model (the EF, an augmented model from the tunnel diagnosis, the FED-LSTM). Only converged
 swims are used; an unconverged one is flagged and left out. A track is cut where the robot comes
-within ``wall_margin_m`` of the tank's wall (the simulator has no walls).
+within ``wall_margin_m`` of the tank's wall (the simulator has no walls). This module takes data
+(the scores' rows and trajectory frames, the gait files' documents) and returns numbers and PNG
+bytes; ``workbench.commands.diagnose_trajectory`` reads the files and the ``diagnose`` command
+writes the outputs.
 
 Two questions (docs/diagnose-trajectory.md):
 
@@ -33,10 +36,11 @@ Two questions (docs/diagnose-trajectory.md):
 
 from __future__ import annotations
 
-import json
+import io
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy import stats
@@ -116,116 +120,82 @@ def _frame_angle(xy_tank: np.ndarray, xy_trial: np.ndarray) -> float:
     return float(np.arctan2(s, c))
 
 
-def tank_size(scores_dir: str | Path) -> tuple[float, float] | None:
-    """(width, length) of the tank from the scored trials folder's ``trials.toml`` (None when unknown)."""
-    import tomllib
+def track_from_frame(row: dict, tr, tank_m: tuple[float, float] | None = None, wall_margin_m: float = 0.25,
+                     where: str | Path | None = None) -> Track:
+    """One scored trial as a :class:`Track`: its ``scores.csv`` row and its trajectory frame.
 
-    from workbench.project import project_root
-
-    root = Path(scores_dir)
-    try:
-        trials_dir = json.loads((root / "summary.json").read_text(encoding="utf-8")).get("trials_dir")
-    except (OSError, ValueError, AttributeError):
-        return None
-    if not trials_dir:
-        return None
-    for base in (Path(trials_dir), project_root() / trials_dir, root.parent / trials_dir):
-        toml = base / "trials.toml"
-        if toml.is_file():
-            try:
-                tank = tomllib.loads(toml.read_text(encoding="utf-8")).get("tank") or {}
-                return float(tank["width_m"]), float(tank["length_m"])
-            except (OSError, ValueError, KeyError, TypeError):
-                return None
-    return None
-
-
-def read_tracks(scores_dir: str | Path, tank_m: tuple[float, float] | None = None,
-                wall_margin_m: float = 0.25) -> list[Track]:
-    """The scored trials of a ``score-trials`` output folder (scores.csv + trajectories/*.parquet).
-
-    ``tank_m`` (width, length; default: from the trials folder named in summary.json): each track
-    is cut at its first sample within ``wall_margin_m`` of a wall, where a pool robot is held by
-    the wall and the simulator (which has none) no longer applies.
+    ``tr``: the trial's ``trajectories/<trial_id>.parquet`` (polars frame). ``tank_m`` (width,
+    length): the track is cut at its first sample within ``wall_margin_m`` of a wall, where a pool
+    robot is held by the wall and the simulator (which has none) no longer applies. ``where``:
+    the file, named in the error for a frame that cannot be used.
     """
-    import polars as pl
-
-    root = Path(scores_dir)
-    csv = root / "scores.csv"
-    if not csv.is_file():
-        raise ContractError("no scores.csv here", path=root, hint="run `workbench score-trials DIR --out DIR` first")
-    if tank_m is None:
-        tank_m = tank_size(root)
-    scores = pl.read_csv(csv)
-    out = []
-    for row in scores.iter_rows(named=True):
-        path = root / "trajectories" / f"{row['trial_id']}.parquet"
-        if not path.is_file():
-            raise DataError("trajectory file missing", path=path)
-        tr = pl.read_parquet(path)
-        missing = {"time_s", "X_m", "Y_m", "heading_change_deg"} - set(tr.columns)
-        if missing:
-            raise DataError(f"trajectory lacks column(s) {sorted(missing)}", path=path)
-        ok = tr["time_s"].to_numpy() >= 0
-        if "detected" in tr.columns:
-            seen = tr["detected"].to_numpy().astype(bool)
-            if "filled" in tr.columns:
-                seen |= tr["filled"].to_numpy().astype(bool)
-            ok &= seen
-        ok &= np.isfinite(tr["X_m"].to_numpy()) & np.isfinite(tr["heading_change_deg"].to_numpy())
-        t = tr["time_s"].to_numpy()[ok]
-        xy = tr.select(["X_m", "Y_m"]).to_numpy()[ok]
-        tank = tr.select(["x_m", "y_m"]).to_numpy()[ok] if "x_m" in tr.columns else None
-        heading = np.radians(tr["heading_change_deg"].to_numpy()[ok])
-        cut = None
-        if tank is not None and tank_m is not None:
-            w, ln = tank_m
-            near = ((tank[:, 0] < wall_margin_m) | (tank[:, 0] > w - wall_margin_m)
-                    | (tank[:, 1] < wall_margin_m) | (tank[:, 1] > ln - wall_margin_m))
-            if near.any():
-                k = int(np.argmax(near))
-                cut = float(t[k]) if k < len(t) else None
-                t, xy, tank, heading = t[:k], xy[:k], tank[:k], heading[:k]
-        if len(t) < 5:
-            raise DataError(f"{len(t)} usable samples" + (" before the robot reached the wall" if cut is not None
-                                                          else ""), path=path)
-        angle = _frame_angle(tank, xy) if tank is not None else 0.0
-        out.append(Track(str(row["trial_id"]), str(row["task"]), str(row["model"]), int(row["solution"]), t, xy,
-                         heading, angle, cut))
-    return out
+    missing = {"time_s", "X_m", "Y_m", "heading_change_deg"} - set(tr.columns)
+    if missing:
+        raise DataError(f"trajectory lacks column(s) {sorted(missing)}", path=where)
+    ok = tr["time_s"].to_numpy() >= 0
+    if "detected" in tr.columns:
+        seen = tr["detected"].to_numpy().astype(bool)
+        if "filled" in tr.columns:
+            seen |= tr["filled"].to_numpy().astype(bool)
+        ok &= seen
+    ok &= np.isfinite(tr["X_m"].to_numpy()) & np.isfinite(tr["heading_change_deg"].to_numpy())
+    t = tr["time_s"].to_numpy()[ok]
+    xy = tr.select(["X_m", "Y_m"]).to_numpy()[ok]
+    tank = tr.select(["x_m", "y_m"]).to_numpy()[ok] if "x_m" in tr.columns else None
+    heading = np.radians(tr["heading_change_deg"].to_numpy()[ok])
+    cut = None
+    if tank is not None and tank_m is not None:
+        w, ln = tank_m
+        near = ((tank[:, 0] < wall_margin_m) | (tank[:, 0] > w - wall_margin_m)
+                | (tank[:, 1] < wall_margin_m) | (tank[:, 1] > ln - wall_margin_m))
+        if near.any():
+            k = int(np.argmax(near))
+            cut = float(t[k]) if k < len(t) else None
+            t, xy, tank, heading = t[:k], xy[:k], tank[:k], heading[:k]
+    if len(t) < 5:
+        raise DataError(f"{len(t)} usable samples" + (" before the robot reached the wall" if cut is not None
+                                                      else ""), path=where)
+    angle = _frame_angle(tank, xy) if tank is not None else 0.0
+    return Track(str(row["trial_id"]), str(row["task"]), str(row["model"]), int(row["solution"]), t, xy,
+                 heading, angle, cut)
 
 
-def gait_for(gaits_dir: str | Path, track: Track) -> tuple[dict, dict]:
-    """The gait parameters (and fixed constants) a trial swam: ``<task>-<model>.json``, its solution rank."""
+def gait_file_name(track: Track) -> str:
+    """The gait file a trial's gait comes from: ``<task>-<model>.json`` (the pool's labels mapped to file names)."""
     label = track.model.lower()
     m = re.fullmatch(r"fed-lstm-(\d+)", label)  # the pool's label of a window net's gaits: FED-LSTM-16 -> lstm16
     model = f"lstm{m.group(1)}" if m else LABELS.get(label, label)
-    path = Path(gaits_dir) / f"{track.task}-{model}.json"
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise ContractError(f"cannot read the gait file ({exc})", path=path) from None
-    for sol in doc.get("solutions", []):
+    return f"{track.task}-{model}.json"
+
+
+def gait_from_doc(doc, track: Track, where: str | Path | None = None) -> tuple[dict, dict]:
+    """The gait parameters (and fixed constants) a trial swam: its solution rank in the gait file ``doc``."""
+    sols = doc.get("solutions", []) if isinstance(doc, dict) else []
+    for sol in sols:
         if int(sol.get("rank", -1)) == track.solution:
             return sol["params"], doc.get("fixed") or {}
-    raise ContractError(f"no solution of rank {track.solution} for trial {track.trial_id}", path=path)
+    raise ContractError(f"no solution of rank {track.solution} for trial {track.trial_id}", path=where)
 
 
-def simulate_tracks(tracks: list[Track], gaits_dir, leg_model, robot, settings: TrajectorySettings,
-                    sim_settings: dict | None = None, warm: list[SimTrack] | None = None) -> list[SimTrack]:
+def simulate_tracks(tracks: list[Track], gaits: Sequence[tuple[dict, dict]], leg_model, robot,
+                    settings: TrajectorySettings, sim_settings: dict | None = None,
+                    warm: list[SimTrack] | None = None, tabulate: Callable | None = None) -> list[SimTrack]:
     """Swim every trial's gait in the simulator (grouped by the gait files' fixed constants).
 
+    ``gaits``: per track, its gait's ``(params, fixed)`` (:func:`gait_from_doc`).
     ``sim_settings``: keyword arguments for :func:`simulate` (the robot file's ``simulation``
     section, without duration and tick). ``warm``: another model's swims of the same trials
     (e.g. the EF's), whose flow histories start the fixed point (the result does not depend on
-    it, only the number of iterations). Each :class:`SimTrack` says whether its swim converged.
+    it, only the number of iterations). ``tabulate(model, batch, dt_s)``: wraps a window net
+    (a ``seq_len``, no flow provider of its own) for the swims when ``settings.tabulate_models``
+    (the command hands in the optimiser's cycle tables, :class:`workbench.gait.tabulate.TabulatedLegModel`).
+    Each :class:`SimTrack` says whether its swim converged.
     """
     from workbench.hydro.simulator import GaitBatch, simulate
 
     kw = {k: v for k, v in (sim_settings or {}).items() if k not in ("duration_s", "dt_s")}
     groups: dict[tuple, list[tuple[int, dict]]] = {}
-    for i, tr in enumerate(tracks):
-        params, fixed = gait_for(gaits_dir, tr)
+    for i, (_, (params, fixed)) in enumerate(zip(tracks, gaits, strict=True)):
         key = tuple(sorted((k, float(v)) for k, v in fixed.items()
                            if k in ("theta_h_max_deg", "theta_k_min_deg", "phi_rad")))
         groups.setdefault(key, []).append((i, params))
@@ -239,11 +209,9 @@ def simulate_tracks(tracks: list[Track], gaits_dir, leg_model, robot, settings: 
                                     and warm[i].flow_mps.shape[-1] == n_ticks for i, _ in todo):
             init = np.stack([warm[i].flow_mps for i, _ in todo])
         model = leg_model
-        if settings.tabulate_models and not callable(getattr(leg_model, "flow_provider", None)) \
-                and getattr(leg_model, "seq_len", 0) > 1:
-            from workbench.gait.tabulate import TabulatedLegModel
-
-            model = TabulatedLegModel(leg_model, batch, sim_dt_s=settings.dt_s)
+        if tabulate is not None and settings.tabulate_models \
+                and not callable(getattr(leg_model, "flow_provider", None)) and getattr(leg_model, "seq_len", 0) > 1:
+            model = tabulate(leg_model, batch, settings.dt_s)
         traj = simulate(batch, model, robot, duration_s=dur, dt_s=settings.dt_s, initial_flow=init, **kw)
         for j, (i, _) in enumerate(todo):
             out[i] = SimTrack(traj.t_s, np.stack([traj.x_m[j], traj.y_m[j]], axis=1), traj.yaw_rad[j],
@@ -556,8 +524,8 @@ def errors_table(doc: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def fig_errors(tracks: list[Track], runs: dict[str, list[SimTrack | None]], errors: dict, path: Path) -> None:
-    """Every trial in its frame: tracked and each model's swim; beside them the RMS errors per model."""
+def fig_errors(tracks: list[Track], runs: dict[str, list[SimTrack | None]], errors: dict) -> bytes:
+    """PNG bytes: every trial in its frame, tracked and each model's swim; beside them the RMS errors per model."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -598,5 +566,7 @@ def fig_errors(tracks: list[Track], runs: dict[str, list[SimTrack | None]], erro
         ax.axis("off")
     fig.suptitle("Tracked pool trials against the simulator with each leg model (trial frames)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
+    return buf.getvalue()
