@@ -12,7 +12,7 @@ planner's candidate pool, the random draws, the grid's order and every round's r
    flow 0 / 0.1 / 0.2 / 0.3 m/s, 3 cycles), ingested, and an ensemble trained on it (its split by
    parameter set is kept for every later training: later runs all train, so no arm loses runs to
    validation or test).
-2. Each round, three arms from the same state of their own: **planned** (``plan_campaign`` with the
+2. Each round, three arms from the same state of their own: **planned** (``plan_from_files`` with the
    arm's current ensemble, ``--runs`` runs), **random** (runs drawn uniformly within the same rig
    ranges) and **grid** (a fixed 3 x 3 x 3 x 3 grid of the rig ranges, each parameter set at the 4
    flow speeds 0 / 0.1 / 0.2 / 0.3 m/s as the paper measured, parameter sets in a seeded order),
@@ -115,13 +115,15 @@ def _grid_runs(ranges, rng) -> list:
 
 def _regions(settings):
     """The operating region with the gait files' own legs (used) and with EF legs (compared)."""
-    from workbench.commands.plan_campaign import own_legs
+    from workbench.commands.plan_campaign import own_legs, read_gait_files
+    from workbench.hydro.robot import load_robot
     from workbench.plan.region import operating_region
 
-    kw = dict(robot_yaml=ROOT / "pipelines/robot.yaml", duration_s=settings.swim_s, cycles=settings.region_cycles,
-              points_per_cycle=settings.region_points_per_cycle, max_rank=2)
-    own = operating_region(GAITS, legs=own_legs(root=ROOT), **kw)
-    ef = operating_region(GAITS, **kw)
+    files, robot = read_gait_files(GAITS, max_rank=2), load_robot(ROOT / "pipelines/robot.yaml")
+    kw = dict(duration_s=settings.swim_s, cycles=settings.region_cycles,
+              points_per_cycle=settings.region_points_per_cycle)
+    own = operating_region(files, robot, legs=own_legs(root=ROOT), **kw)
+    ef = operating_region(files, robot, **kw)
     so, se = own.states(), ef.states()
     names = ("flow_speed_mps", "theta_h_deg", "theta_k_deg", "omega_h_dps", "omega_k_dps")
     cmp = {"own_legs": own.summary(), "ef_legs": ef.summary(),
@@ -135,6 +137,7 @@ def _regions(settings):
 def run_seed(seed: int, args, settings, region, truth, ef_region, ef_truth) -> dict:  # noqa: C901 - one protocol
     import shutil
 
+    from workbench.commands.plan_campaign import plan_from_files
     from workbench.commands.train_ensemble import write_ensemble
     from workbench.ingest import ingest_to_file
     from workbench.learn.config import load_config
@@ -142,7 +145,6 @@ def run_seed(seed: int, args, settings, region, truth, ef_region, ef_truth) -> d
     from workbench.learn.ensemble import load_ensemble, train_ensemble
     from workbench.learn.split import ParameterSplit
     from workbench.learn.windows import read_table, set_key
-    from workbench.plan.planner import plan_campaign
     from workbench.virtual_lab.tunnel import generate_tunnel
 
     t_start = time.perf_counter()
@@ -204,8 +206,8 @@ def run_seed(seed: int, args, settings, region, truth, ef_region, ef_truth) -> d
         t0 = time.perf_counter()
         (work / f"plan-{r}").mkdir()  # plan.md goes beside each manifest: one folder per round
         plan_path = work / f"plan-{r}" / "plan.toml"
-        prec = plan_campaign(work / arms["planned"]["dir"], GAITS, args.runs, plan_path, settings=s,
-                             campaign_id=f"planned-{r}", date="2026-01-01", region=region)
+        prec = plan_from_files(work / arms["planned"]["dir"], GAITS, args.runs, plan_path, settings=s,
+                               campaign_id=f"planned-{r}", date="2026-01-01", region=region)
         costs["plan_s"].append(time.perf_counter() - t0)
         # random and grid runs are consumed in order: a round takes the next runs of its stream
         rand_runs = [next(rand) for _ in range(4 * args.runs)]

@@ -49,8 +49,9 @@ def test_ensemble_reports_calibration_measured_on_held_out_sets(ensemble_dir):
 @pytest.mark.slow
 def test_plan_measure_validate_add(ensemble_dir, tmp_path, capsys, monkeypatch):
     from workbench.cli import main
+    from workbench.commands.plan_campaign import plan_from_files
     from workbench.plan.acquisition import RigRanges
-    from workbench.plan.planner import PlanSettings, plan_campaign
+    from workbench.plan.planner import PlanSettings
     from workbench.virtual_lab.tunnel import generate_tunnel
 
     gaits = tmp_path / "straight-x.json"
@@ -65,10 +66,10 @@ def test_plan_measure_validate_add(ensemble_dir, tmp_path, capsys, monkeypatch):
     ranges = RigRanges(cycles=2, setup_s=30.0)
     s = PlanSettings(n_candidates=24, swim_s=6.0, region_points_per_cycle=6, points_per_run=4, ranges=ranges)
     out = tmp_path / "plans" / "next-1.toml"
-    rec = plan_campaign(ensemble_dir[0], [gaits], 3, out, diagnosis=diag, settings=s, date="2026-01-02")
+    rec = plan_from_files(ensemble_dir[0], [gaits], 3, out, diagnosis=diag, settings=s, date="2026-01-02")
     doc = tomllib.loads(out.read_text())
     assert doc["id"] == "next-1" and (out.parent / "plan.md").is_file()
-    # plan_campaign without ``legs`` swims with EF legs, and plan.md says so
+    # planning without ``legs`` swims with EF legs, and plan.md says so
     assert "swum with straight-x.json: ef." in (out.parent / "plan.md").read_text()
     runs = doc["runs"]
     # three for the uncertainty, three for the ambiguous pair (zero flow at both frequency ends, top flow)

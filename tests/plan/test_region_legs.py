@@ -6,7 +6,8 @@ import json
 
 import numpy as np
 
-from workbench.commands.plan_campaign import own_legs
+from workbench.commands.plan_campaign import own_legs, read_gait_files
+from workbench.hydro.robot import load_robot
 from workbench.plan.region import operating_region
 
 GAIT = {"rank": 1, "params": {"theta_h_min_deg": -40.0, "theta_k_max_deg": -70.0, "frequency_hz": 0.6,
@@ -32,17 +33,19 @@ class StrongLegs:
 
 
 def test_own_legs_fall_back_to_ef_with_a_note_and_other_legs_change_the_flow(tmp_path):
-    kw = dict(robot_yaml="pipelines/robot.yaml", duration_s=6.0, points_per_cycle=8)
+    kw = dict(duration_s=6.0, points_per_cycle=8)
+    robot = load_robot("pipelines/robot.yaml")
     missing = _file(tmp_path, "a", str(tmp_path / "no-such-model"))
-    ef_file = _file(tmp_path, "b", "ef")
-    own = operating_region([missing, ef_file], legs=own_legs(), **kw)
-    plain = operating_region([missing, ef_file], **kw)
+    both = read_gait_files([missing, _file(tmp_path, "b", "ef")])
+    ef_file = both[1:]
+    own = operating_region(both, robot, legs=own_legs(), **kw)
+    plain = operating_region(both, robot, **kw)
     assert "EF (fallback" in own.leg_models[0] and "no-such-model" in own.leg_models[0]
     assert "fallback" not in own.leg_models[1]
     # both files swum with EF legs: the same states as the EF region
     assert np.allclose(own.states(), plain.states())
     # a stronger leg model in the swim: the legs see a faster flow (the robot swims faster)
-    strong = operating_region([ef_file], legs=lambda path, doc, gaits: (StrongLegs(2.0), "strong"), **kw)
-    weak = operating_region([ef_file], **kw)
+    strong = operating_region(ef_file, robot, legs=lambda path, doc, gaits: (StrongLegs(2.0), "strong"), **kw)
+    weak = operating_region(ef_file, robot, **kw)
     assert strong.leg_models == ("b.json: strong",)
     assert strong.states()[:, 0].mean() > 1.1 * weak.states()[:, 0].mean()

@@ -118,14 +118,79 @@ def _settings(args):
     return PlanSettings.from_dict(doc, path=source)
 
 
+def read_gait_files(paths, max_rank: int | None = None) -> list:
+    """The gait files (contract section 5) read and checked: :func:`workbench.plan.region.gait_files_from_docs`."""
+    import json
+
+    from workbench.errors import ContractError
+    from workbench.plan.region import gait_files_from_docs
+
+    docs = []
+    for p in map(Path, paths):
+        try:
+            docs.append((p, json.loads(p.read_text(encoding="utf-8"))))
+        except FileNotFoundError:
+            raise ContractError("gait file not found", path=p) from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ContractError(f"not a gait file ({type(exc).__name__}: {exc}); expected "
+                                "{'solutions': [{'rank', 'params'}, ...]}", path=p) from None
+    return gait_files_from_docs(docs, max_rank)
+
+
+def read_diagnosis(path) -> dict:
+    """``diagnosis.json`` from a file or the folder holding it (contract section 4)."""
+    from workbench.contract.jsonfile import read_json
+    from workbench.plan.diagnosis_runs import check_diagnosis
+
+    p = Path(path)
+    p = p / "diagnosis.json" if p.is_dir() else p
+    return check_diagnosis(read_json(p, "diagnosis.json", hint="pass the folder workbench diagnose wrote"), p)
+
+
+def write_plan(out, texts: dict[str, str]) -> None:
+    """The manifest and plan.md beside it, as one set (both new or both old after a kill).
+
+    An existing file of either name that an earlier plan-campaign did not write is refused, never replaced.
+    """
+    from workbench import atomic
+
+    out = Path(out)
+    with atomic.atomic_files(out.parent, list(texts), "plan-campaign", set_name=f"plan-campaign-{out.stem}") as tmp:
+        for name, text in texts.items():
+            tmp[name].write_text(text, encoding="utf-8")
+
+
+def plan_from_files(model_dir, gait_paths, n_runs: int, out, *, diagnosis=None, settings=None,
+                    campaign_id: str | None = None, date: str | None = None, robot_yaml="pipelines/robot.yaml",
+                    drag_json=None, legs=None, region=None, write: bool = True) -> dict:
+    """Read the inputs, plan (:func:`workbench.plan.planner.plan_campaign`), write ``out`` and plan.md; the record.
+
+    Bad gait files are refused before the ensemble is loaded; ``region``: an operating region
+    already swum from these gait files (the robot file is then not read).
+    """
+    from workbench.hydro.robot import load_robot
+    from workbench.learn.ensemble import load_ensemble
+    from workbench.plan.planner import PlanSettings, plan_campaign, plan_texts
+
+    s = settings or PlanSettings()
+    files = read_gait_files(gait_paths, s.max_rank)
+    ensemble = load_ensemble(model_dir)
+    doc = read_diagnosis(diagnosis) if diagnosis is not None else None
+    robot = load_robot(robot_yaml, drag_json=drag_json) if region is None else None
+    record = plan_campaign(ensemble, files, n_runs, out, diagnosis=doc, settings=s, campaign_id=campaign_id,
+                           robot=robot, ensemble_dir=model_dir, region=region, legs=legs)
+    if write:
+        write_plan(out, plan_texts(out, record, s, date))
+    return record
+
+
 def run(args) -> int:
     """Plan and report."""
     from workbench.console import info
-    from workbench.plan.planner import plan_campaign
 
-    rec = plan_campaign(args.model, args.gaits, args.n_runs, args.out, diagnosis=args.diagnosis,
-                        settings=_settings(args), campaign_id=args.id, date=args.date, robot_yaml=args.robot,
-                        drag_json=args.drag, legs=None if args.ef_legs else own_legs())
+    rec = plan_from_files(args.model, args.gaits, args.n_runs, args.out, diagnosis=args.diagnosis,
+                          settings=_settings(args), campaign_id=args.id, date=args.date, robot_yaml=args.robot,
+                          drag_json=args.drag, legs=None if args.ef_legs else own_legs())
     drop = 100 * (1 - rec["total_after"] / max(rec["total_before"], 1e-30))
     info(f"planned {rec['n_runs']} runs ({rec['n_diagnosis_runs']} for the diagnosis), "
          f"{rec['tunnel_s'] / 60:.1f} tunnel minutes; region-weighted variance {drop:.0f} % lower expected")

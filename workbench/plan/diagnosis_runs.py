@@ -15,7 +15,6 @@ Each run is at the median stroke of the operating region (so it also counts for 
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -32,18 +31,10 @@ def flow_borne(name: str) -> bool:
     return any(f in name for f in FLOW_BORNE)
 
 
-def read_diagnosis(path: str | Path) -> dict:
-    """``diagnosis.json`` from a file or the folder holding it."""
-    p = Path(path)
-    p = p / "diagnosis.json" if p.is_dir() else p
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ContractError("no diagnosis.json", path=p, hint="pass the folder workbench diagnose wrote") from None
-    except json.JSONDecodeError as exc:
-        raise ContractError(f"diagnosis.json is not JSON ({exc.msg})", path=p) from None
-    if not isinstance(doc.get("effects"), list):
-        raise ContractError("diagnosis.json has no 'effects' list (contract section 4)", path=p)
+def check_diagnosis(doc, path: str | Path | None = None) -> dict:
+    """``doc`` if it is a diagnosis (contract section 4: an ``effects`` list), else a ContractError naming ``path``."""
+    if not isinstance(doc, dict) or not isinstance(doc.get("effects"), list):
+        raise ContractError("diagnosis.json has no 'effects' list (contract section 4)", path=path)
     return doc
 
 

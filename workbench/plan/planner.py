@@ -4,7 +4,9 @@ Pieces: the FED-LSTM ensemble (:mod:`workbench.learn.ensemble`), the operating r
 retained gaits (:mod:`workbench.plan.region`), candidate runs within the rig's ranges, the runs a
 diagnosis asks for (:mod:`workbench.plan.diagnosis_runs`) and the integrated-variance greedy
 batch (:mod:`workbench.plan.acquisition`). Output: ``PLAN.toml`` (contract v1 campaign manifest,
-runs with motion parameters, flow speed and cycles, no file entries) and ``plan.md`` beside it.
+runs with motion parameters, flow speed and cycles, no file entries) and ``plan.md`` beside it,
+returned as texts (:func:`plan_texts`); ``workbench.commands.plan_campaign`` reads the inputs and
+writes the two files as one set.
 """
 
 from __future__ import annotations
@@ -61,20 +63,26 @@ def _plan_id(out: Path, given: str | None) -> str:
     return cid
 
 
-def plan_campaign(ensemble_dir: str | Path, gait_files: Sequence[str | Path], n_runs: int, out: str | Path, *,
-                  diagnosis: str | Path | None = None, settings: PlanSettings | None = None,
-                  campaign_id: str | None = None, date: str | None = None, robot_yaml: str | Path = "pipelines/robot.yaml",
-                  drag_json: str | Path | None = None, write: bool = True, region=None, legs=None) -> dict:
-    """Propose ``n_runs`` runs (plus the diagnosis's) and write ``out`` and ``plan.md`` beside it.
+def plan_campaign(ensemble, gait_files: Sequence, n_runs: int, out: str | Path, *, diagnosis: dict | None = None,
+                  settings: PlanSettings | None = None, campaign_id: str | None = None, robot=None,
+                  ensemble_dir: str | Path | None = None, region=None, legs=None) -> dict:
+    """Propose ``n_runs`` runs (plus the diagnosis's); returns the plan record.
 
-    Returns the plan record (runs with their reasons and gains, region variance before/after,
-    tunnel time, costs). ``region``: an operating region already computed from ``gait_files``
-    (:func:`~workbench.plan.region.operating_region`), to skip the swims; ``legs``: which legs swim
-    each gait file's gaits (see there; default EF).
+    Takes data; the command reads and writes (``workbench.commands.plan_campaign.plan_from_files``).
+    ``ensemble``: the FED-LSTM ensemble (:func:`workbench.learn.ensemble.load_ensemble`),
+    ``ensemble_dir`` its folder (named in the record); ``gait_files``: the retained gaits
+    (:func:`workbench.plan.region.gait_files_from_docs`); ``out``: the manifest's path (its name
+    gives the default campaign id; nothing is written here); ``diagnosis``: a diagnosis.json
+    document (:func:`workbench.plan.diagnosis_runs.check_diagnosis`); ``robot``: the robot's
+    constants for the swims (default: the built-in ones). ``region``: an operating region already
+    computed from ``gait_files`` (:func:`~workbench.plan.region.operating_region`), to skip the
+    swims; ``legs``: which legs swim each gait file's gaits (see there; default EF).
+
+    The record holds the runs with their reasons and gains, region variance before/after, tunnel
+    time and costs; :func:`plan_texts` makes the manifest and plan.md of it.
     """
-    from workbench.learn.ensemble import load_ensemble
     from workbench.plan.acquisition import IntegratedVariance, greedy_select, random_candidates
-    from workbench.plan.region import operating_region, read_gaits
+    from workbench.plan.region import operating_region, retained_params
 
     if n_runs < 0:
         raise ContractError(f"--n-runs must be >= 0, got {n_runs}")
@@ -82,30 +90,25 @@ def plan_campaign(ensemble_dir: str | Path, gait_files: Sequence[str | Path], n_
     out = Path(out)
     cid = _plan_id(out, campaign_id)
     t0 = time.perf_counter()
-    read_gaits(gait_files, s.max_rank)  # bad gait files are refused before anything is loaded
-    ens = load_ensemble(ensemble_dir)
     if region is None:
-        region = operating_region(gait_files, robot_yaml=robot_yaml, drag_json=drag_json, duration_s=s.swim_s,
-                                  cycles=s.region_cycles, points_per_cycle=s.region_points_per_cycle,
-                                  max_rank=s.max_rank, legs=legs)
+        if robot is None:
+            from workbench.hydro.robot import RobotParams
+
+            robot = RobotParams()
+        region = operating_region(gait_files, robot, duration_s=s.swim_s, cycles=s.region_cycles,
+                                  points_per_cycle=s.region_points_per_cycle, legs=legs)
     t_region = time.perf_counter()
     cands = random_candidates(s.ranges, s.n_candidates, s.seed)
     forced: list[int] = []
     pairs: list = []
     if diagnosis is not None:
-        from workbench.plan.diagnosis_runs import (
-            ambiguous_pairs,
-            diagnosis_runs,
-            read_diagnosis,
-            region_stroke,
-        )
+        from workbench.plan.diagnosis_runs import ambiguous_pairs, diagnosis_runs, region_stroke
 
-        doc = read_diagnosis(diagnosis)
-        pairs = ambiguous_pairs(doc)
-        extra = diagnosis_runs(doc, s.ranges, region_stroke(read_gaits(gait_files, s.max_rank)[0], s.ranges))
+        pairs = ambiguous_pairs(diagnosis)
+        extra = diagnosis_runs(diagnosis, s.ranges, region_stroke(retained_params(gait_files), s.ranges))
         forced = list(range(len(cands), len(cands) + len(extra)))
         cands = cands + extra
-    iv = IntegratedVariance(ens, region, cands, lengthscale=s.lengthscale, points_per_run=s.points_per_run)
+    iv = IntegratedVariance(ensemble, region, cands, lengthscale=s.lengthscale, points_per_run=s.points_per_run)
     sel = greedy_select(iv, n_runs + len(forced), s.ranges, forced)
     t_sel = time.perf_counter()
     runs = _ordered_runs(cands, sel, s.ranges)
@@ -115,14 +118,12 @@ def plan_campaign(ensemble_dir: str | Path, gait_files: Sequence[str | Path], n_
         "tunnel_s": sum(r["tunnel_s"] for r in runs),
         "region": region.summary(), "region_var_before": sel.region_var_before,
         "region_var_after": sel.region_var_after, "total_before": sel.total_before, "total_after": sel.total_after,
-        "ensemble": {"dir": str(ensemble_dir), "members": len(ens.members),
-                     "coverage_test_after": ens.record.get("calibration", {}).get("coverage_test_after")},
+        "ensemble": {"dir": None if ensemble_dir is None else str(ensemble_dir), "members": len(ensemble.members),
+                     "coverage_test_after": ensemble.record.get("calibration", {}).get("coverage_test_after")},
         "settings": {"n_candidates": s.n_candidates, "lengthscale": s.lengthscale, "points_per_run": s.points_per_run,
                      "setup_s": s.ranges.setup_s, "cycles": s.ranges.cycles, "seed": s.seed},
         "cost_s": {"region": t_region - t0, "select": t_sel - t_region, "total": t_sel - t0},
     }
-    if write:
-        write_plan(out, record, s, date)
     return record
 
 
@@ -143,7 +144,13 @@ def _ordered_runs(cands: Sequence[Candidate], sel, ranges: RigRanges) -> list[di
 
 
 def manifest_text(record: dict, s: PlanSettings, date: str | None) -> str:
-    """The contract-v1 campaign.toml of the plan: runs with parameters, flow speed and cycles, no files."""
+    """The contract-v1 campaign.toml of the plan: runs with parameters, flow speed and cycles, no files.
+
+    Written by the virtual lab's campaign.toml writer (:func:`workbench.virtual_lab.writers.manifest_text`),
+    so a plan and a generated campaign are the same TOML.
+    """
+    from workbench.virtual_lab.writers import manifest_text as campaign_toml
+
     day = date or _dt.date.today().isoformat()
     head = {"schema": "workbench/campaign@1", "id": record["campaign_id"], "facility": "water_tunnel", "date": day,
             "description": f"{PLAN_NOTE} ({record['n_runs']} runs, {record['tunnel_s'] / 60:.1f} tunnel minutes); "
@@ -154,36 +161,7 @@ def manifest_text(record: dict, s: PlanSettings, date: str | None) -> str:
     lines = ["# A PLAN: no run has been measured yet, so no run names its files (loadcell/motion or mcap).",
              "# Measure each run as given (the rig's controller, or `workbench virtual-lab tunnel DIR --plan THIS`),",
              "# then add the file entries per run and `workbench campaign add DIR`. Why each run: plan.md.", ""]
-    return "\n".join(lines) + _toml(head, tables, runs)
-
-
-def _value(v: Any) -> str:
-    import json
-    import math
-
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            raise ContractError(f"non-finite value {v} in a planned run")
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def _toml(head: Mapping[str, Any], tables: Mapping[str, Mapping[str, Any]], runs: Sequence[Mapping[str, Any]]) -> str:
-    """campaign.toml text: top-level keys (``date`` bare, a TOML date), tables, then ``[[runs]]``."""
-    lines = [f"{k} = {v}" if k == "date" else f"{k} = {_value(v)}" for k, v in head.items()]
-    for name, table in tables.items():
-        lines += ["", f"[{name}]"] + [f"{k} = {_value(v)}" for k, v in table.items()]
-    for run in runs:
-        lines += ["", "[[runs]]"] + [f"{k} = {_value(v)}" for k, v in run.items()]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + campaign_toml(head, tables, runs)
 
 
 def plan_markdown(record: dict, out_name: str) -> str:
@@ -225,15 +203,8 @@ def plan_markdown(record: dict, out_name: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_plan(out: Path, record: dict, s: PlanSettings, date: str | None) -> None:
-    """The manifest and plan.md beside it, as one set (both new or both old after a kill).
-
-    An existing file of either name that an earlier plan-campaign did not write is refused, never replaced.
-    """
-    from workbench import atomic
-
+def plan_texts(out: str | Path, record: dict, s: PlanSettings, date: str | None) -> dict[str, str]:
+    """``{file name: text}``: the manifest (named as ``out``) and plan.md beside it, written by the command as one set."""
+    out = Path(out)
     report = out.with_name("plan.md") if out.name != "plan.md" else out.with_suffix(".report.md")
-    texts = {out.name: manifest_text(record, s, date), report.name: plan_markdown(record, out.name)}
-    with atomic.atomic_files(out.parent, list(texts), "plan-campaign", set_name=f"plan-campaign-{out.stem}") as tmp:
-        for name, text in texts.items():
-            tmp[name].write_text(text, encoding="utf-8")
+    return {out.name: manifest_text(record, s, date), report.name: plan_markdown(record, out.name)}

@@ -1,7 +1,7 @@
 """The operating region: the states the retained gaits put the legs in, from the full-body simulator.
 
-Each retained gait (``datasets/gaits/<task>-<model>.json``, contract section 5) is swum from rest
-by the full-body simulator; the last ``cycles`` cycles of each leg are the region. A region point
+Each retained gait (``datasets/gaits/<task>-<model>.json``, contract section 5; the command reads
+the files and hands their documents in) is swum from rest by the full-body simulator; the last ``cycles`` cycles of each leg are the region. A region point
 is one tick of one leg: the flow speed that leg saw, its joint angles and rates, *with its history*
 (the leg's whole motion is kept, so a window model sees what it would see in the swim).
 
@@ -16,14 +16,13 @@ their weights (every gait weighs the same; within a gait, its legs and ticks ali
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from workbench.errors import ContractError
+from workbench.errors import ContractError, ConvergenceError
 
 #: the state of a region point, in FEATURES order
 STATE = ("flow_speed_mps", "theta_h_deg", "theta_k_deg", "omega_h_dps", "omega_k_dps")
@@ -64,16 +63,22 @@ class Region:
                 **{k: [float(s[:, i].min()), float(s[:, i].max())] for i, k in enumerate(STATE)}}
 
 
-def read_gait_files(paths: Sequence[str | Path], max_rank: int | None = None) -> list[tuple[Path, dict, list, list]]:
-    """Per gait file (contract section 5): its path, document, retained ``params`` and labels."""
+#: one gait file: its path (for names and messages), its document, its retained gaits' params and their labels
+GaitFile = tuple[Path, dict, list, list]
+
+
+def gait_files_from_docs(docs: Sequence[tuple[str | Path, Any]], max_rank: int | None = None) -> list[GaitFile]:
+    """Per gait file (contract section 5, read by the command): its path, document, retained ``params`` and labels.
+
+    ``docs``: ``(path, parsed JSON)`` per file; the path names the file in labels and errors.
+    """
     out, n = [], 0
-    for p in map(Path, paths):
+    for path, doc in docs:
+        p = Path(path)
         try:
-            doc = json.loads(p.read_text(encoding="utf-8"))
             sols = doc["solutions"]
-        except FileNotFoundError:
-            raise ContractError("gait file not found", path=p) from None
-        except (json.JSONDecodeError, KeyError, TypeError) as exc:
+            iter(sols)
+        except (KeyError, TypeError) as exc:
             raise ContractError(f"not a gait file ({type(exc).__name__}: {exc}); expected "
                                 "{'solutions': [{'rank', 'params'}, ...]}", path=p) from None
         params, labels = [], []
@@ -88,14 +93,13 @@ def read_gait_files(paths: Sequence[str | Path], max_rank: int | None = None) ->
         if params:
             out.append((p, doc, params, labels))
     if not out:
-        raise ContractError("no retained gaits in the gait files", path=", ".join(map(str, paths)))
+        raise ContractError("no retained gaits in the gait files", path=", ".join(str(p) for p, _ in docs))
     return out
 
 
-def read_gaits(paths: Sequence[str | Path], max_rank: int | None = None) -> tuple[list[dict], list[str]]:
-    """Retained gaits of the gait files (contract section 5): their ``params`` and labels."""
-    files = read_gait_files(paths, max_rank)
-    return [x for f in files for x in f[2]], [x for f in files for x in f[3]]
+def retained_params(files: Sequence[GaitFile]) -> list[dict]:
+    """The retained gaits' ``params`` of all the gait files, in order."""
+    return [x for f in files for x in f[2]]
 
 
 #: the gait file's fixed values a swim must use (the rest of the gait is in each solution's params)
@@ -104,25 +108,23 @@ _FIXED = ("theta_h_max_deg", "theta_k_min_deg", "phi_rad")
 LegsFor = Callable[[Path, dict, Any], tuple[Any, str]]
 
 
-def operating_region(gait_files: Sequence[str | Path], *, robot_yaml: str | Path = "pipelines/robot.yaml",
-                     drag_json: str | Path | None = None, duration_s: float = 12.0, cycles: float = 1.0,
-                     points_per_cycle: int = 16, max_rank: int | None = None, leg_model=None,
-                     legs: LegsFor | None = None) -> Region:
+def operating_region(files: Sequence[GaitFile], robot, *, duration_s: float = 12.0, cycles: float = 1.0,
+                     points_per_cycle: int = 16, leg_model=None, legs: LegsFor | None = None) -> Region:
     """Swim every retained gait (full-body simulator) and keep each leg's last ``cycles`` cycles.
 
-    Each gait file's gaits are swum together, with the legs ``legs(path, doc, gaits)`` returns (a
-    model and a note; ``None``: EF), else ``leg_model``, else the EF. An unconverged swim is an
-    error (its states would be made up).
+    ``files``: the gait files (:func:`gait_files_from_docs`); ``robot``: the robot's constants
+    (:class:`workbench.hydro.robot.RobotParams`, the command loads them). Each gait file's gaits
+    are swum together, with the legs ``legs(path, doc, gaits)`` returns (a model and a note;
+    ``None``: EF), else ``leg_model``, else the EF. An unconverged swim is an error (its states
+    would be made up).
     """
     import time
 
     from workbench.hydro.ef import EmpiricalFormula
     from workbench.hydro.motion import LegMotion
-    from workbench.hydro.robot import LEG_NAMES, load_robot
+    from workbench.hydro.robot import LEG_NAMES
     from workbench.hydro.simulator import DEFAULT_DT_S, GaitBatch, simulate
 
-    files = read_gait_files(gait_files, max_rank)
-    robot = load_robot(robot_yaml, drag_json=drag_json)
     t0 = time.perf_counter()
     freqs, legs_rows, labels, notes = [], [], [], []
     for path, doc, params, labs in files:
@@ -135,7 +137,7 @@ def operating_region(gait_files: Sequence[str | Path], *, robot_yaml: str | Path
                         dt_s=DEFAULT_DT_S)
         if not np.all(traj.converged):
             bad = [labs[i] for i in np.flatnonzero(~traj.converged)]
-            raise ContractError(f"the swim of {len(bad)} gait(s) with {note} legs did not converge "
+            raise ConvergenceError(f"the swim of {len(bad)} gait(s) with {note} legs did not converge "
                                 f"({', '.join(bad[:3])})", path=path,
                                 hint="the region needs converged swims; check the gait file and its model")
         t = traj.t_s
@@ -164,5 +166,5 @@ def operating_region(gait_files: Sequence[str | Path], *, robot_yaml: str | Path
             ticks.append(idx)
             weights.append(np.full(n, 1.0 / (4 * n * len(freqs))))
     row_labels = tuple(f"{lab} {leg}" for lab in labels for leg in LEG_NAMES)
-    return Region(motion, np.array(ticks), np.array(weights), row_labels, tuple(str(p) for p in gait_files),
+    return Region(motion, np.array(ticks), np.array(weights), row_labels, tuple(str(f[0]) for f in files),
                   tuple(notes), swim_s)
