@@ -496,17 +496,35 @@ def _prediction_reasons(ls: dict, ef: dict, gap: dict[str, float], neither: bool
     return reasons
 
 
+def seq_len_inputs(models: list[str], *, leg_metrics_paths=(), gaits_dir: str | Path = "datasets/gaits",
+                   pool_summary_path: str | Path | None = None) -> dict:
+    """Read what :func:`workbench.gait.compare.seq_len_tables` compares (missing files are left out, not errors).
+
+    ``leg_metrics_paths``: evaluate outputs, merged in order (a later file's model keys win);
+    gait metrics ``<gaits_dir>/<task>-<key>.metrics.json``; the pool's summary.json. Returns the
+    keyword arguments ``leg_metrics``, ``gait_metrics`` and ``pool_summary`` of ``seq_len_tables``.
+    """
+    from workbench.gait.compare import TASKS
+
+    leg: dict = {}
+    for p in leg_metrics_paths:
+        leg.update(_load_json(Path(p)) or {})
+    gait = {k: {t: d for t in TASKS if (d := _load_json(Path(gaits_dir) / f"{t}-{k}.metrics.json"))} for k in models}
+    return {"leg_metrics": leg or None, "gait_metrics": gait,
+            "pool_summary": _load_json(Path(pool_summary_path)) if pool_summary_path else None}
+
+
 def seq_len_section(datasets: Path) -> Section:
     """The paper's 16-tick FED-LSTM beside the 32-tick default: accuracy, the optimiser's predictions, the pool."""
-    from workbench.gait.compare import load_inputs, seq_len_tables
+    from workbench.gait.compare import seq_len_tables
 
     sec = Section("The paper's 16-tick FED-LSTM beside the 32-tick default")
     if not (datasets / "models" / "fed-lstm-16").is_dir() and not list((datasets / "gaits").glob("*-lstm16.json")):
         sec.paragraphs.append("No 16-tick model in this project (dvc.yaml stage train_16).")
         return sec
     pool = sorted((datasets / "scores").glob("*/summary.json"))
-    inputs = load_inputs(["lstm", "lstm16"], leg_metrics_paths=[datasets / "metrics" / "leg_models.json"],
-                         gaits_dir=datasets / "gaits", pool_summary_path=pool[0] if pool else None)
+    inputs = seq_len_inputs(["lstm", "lstm16"], leg_metrics_paths=[datasets / "metrics" / "leg_models.json"],
+                            gaits_dir=datasets / "gaits", pool_summary_path=pool[0] if pool else None)
     tables, notes = seq_len_tables([("lstm", "FED-LSTM (32 ticks)"), ("lstm16", "FED-LSTM (16 ticks, paper)")],
                                    **inputs)
     sec.tables += tables

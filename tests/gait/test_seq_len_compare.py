@@ -2,7 +2,11 @@
 
 import json
 
-from workbench.gait.compare import load_inputs, seq_len_comparison
+import pytest
+
+from workbench.errors import SettingError
+from workbench.gait.compare import seq_len_comparison
+from workbench.report import seq_len_inputs
 
 MODELS = [("lstm", "FED-LSTM (32)"), ("lstm16", "FED-LSTM (16)")]
 
@@ -56,8 +60,8 @@ def test_missing_inputs_are_named_not_invented(tmp_path):
     # from files as the pipeline leaves them: a missing file is left out
     (tmp_path / "straight-lstm16.metrics.json").write_text(json.dumps({"best_f3": 20.0, "best_score": 50.0}))
     (tmp_path / "m.json").write_text(json.dumps(_leg()))
-    got = load_inputs(["lstm", "lstm16"], leg_metrics_paths=[str(tmp_path / "m.json")], gaits_dir=str(tmp_path),
-                      pool_summary_path=str(tmp_path / "absent.json"))
+    got = seq_len_inputs(["lstm", "lstm16"], leg_metrics_paths=[str(tmp_path / "m.json")], gaits_dir=str(tmp_path),
+                         pool_summary_path=str(tmp_path / "absent.json"))
     assert got["gait_metrics"] == {"lstm": {}, "lstm16": {"straight": {"best_f3": 20.0, "best_score": 50.0}}}
     assert got["pool_summary"] is None and set(got["leg_metrics"]) == {"ef", "lstm", "lstm16"}
     md = seq_len_comparison(MODELS, **got)
@@ -73,3 +77,11 @@ def test_tables_in_the_reports_shape():
         assert caption and all(len(r) == len(head) for r in rows)
     assert tables[0][2][0] == ["fy_n (N^2)", "0.0134", "0.0008", "0.978", "0.0012", "0.967", "1.50"]
     assert len(notes) == 1 and "no pool trials of FED-LSTM-16 (turn)" in notes[0]
+
+
+def test_no_model_is_a_setting_error_in_one_line():
+    with pytest.raises(SettingError) as exc:
+        seq_len_comparison([])
+    msg = str(exc.value)
+    assert isinstance(exc.value, ValueError)          # callers written for the old ValueError keep working
+    assert msg.startswith("models: the comparison needs at least one model") and "\n" not in msg

@@ -2,7 +2,8 @@
 
 :func:`seq_len_tables` is pure: it takes what the pipeline already wrote, loaded as dicts, and
 returns the report's tables (caption, header, rows); :func:`seq_len_comparison` renders them as
-markdown; :func:`load_inputs` reads the files. Three views of each model, each from its own file:
+markdown; the report verb reads the files (``workbench.report.seq_len_inputs``). Three views of
+each model, each from its own file:
 
 * held-out accuracy: ``workbench evaluate`` metrics (``leg_models.json`` shape: per model ``mse``
   and ``r2`` per channel), best scored on the same test runs and ticks (one evaluate with
@@ -20,6 +21,8 @@ from __future__ import annotations
 
 import math
 from typing import Any, Mapping, Sequence
+
+from workbench.errors import SettingError
 
 #: channels compared by default (the paper's Fig. 5 channels)
 CHANNELS = ("fy_n", "fz_n", "tx_nm")
@@ -66,7 +69,8 @@ def seq_len_tables(models: Sequence[tuple[str, str]], *, leg_metrics: Mapping[st
     is an unfinished trial).
     """
     if not models:
-        raise ValueError("seq_len_tables needs at least one (key, title) model")
+        raise SettingError("the comparison needs at least one model", where="models",
+                           hint="give (key, title) pairs, e.g. [('lstm', 'FED-LSTM (32 ticks)')]")
     keys = [k for k, _ in models]
     titles = dict(models)
     missing: list[str] = []
@@ -183,28 +187,3 @@ def _pool_label(key: str, labels: Mapping[str, str] | None) -> str:
     from workbench.virtual_lab.pool import model_display_label
 
     return model_display_label(key)
-
-
-def load_inputs(models: Sequence[str], *, leg_metrics_paths: Sequence = (), gaits_dir="datasets/gaits",
-                pool_summary_path=None) -> dict:
-    """Read the files :func:`seq_len_comparison` compares (missing files are left out, not errors).
-
-    ``leg_metrics_paths``: evaluate outputs, merged in order (a later file's model keys win);
-    gait metrics ``<gaits_dir>/<task>-<key>.metrics.json``; the pool's summary.json. Returns the
-    keyword arguments ``leg_metrics``, ``gait_metrics`` and ``pool_summary`` of :func:`seq_len_tables`.
-    """
-    import json
-    from pathlib import Path
-
-    def read(p):
-        try:
-            return json.loads(Path(p).read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return None
-
-    leg: dict = {}
-    for p in leg_metrics_paths:
-        leg.update(read(p) or {})
-    gait = {k: {t: d for t in TASKS if (d := read(Path(gaits_dir) / f"{t}-{k}.metrics.json"))} for k in models}
-    return {"leg_metrics": leg or None, "gait_metrics": gait,
-            "pool_summary": read(pool_summary_path) if pool_summary_path else None}
