@@ -146,10 +146,10 @@ def _ordered_runs(cands: Sequence[Candidate], sel, ranges: RigRanges) -> list[di
 def manifest_text(record: dict, s: PlanSettings, date: str | None) -> str:
     """The contract-v1 campaign.toml of the plan: runs with parameters, flow speed and cycles, no files.
 
-    Written by the virtual lab's campaign.toml writer (:func:`workbench.virtual_lab.writers.manifest_text`),
-    so a plan and a generated campaign are the same TOML.
+    Written by the contract's campaign.toml writer (:func:`workbench.contract.toml_text.campaign_toml`),
+    the one the virtual lab's campaigns are written with.
     """
-    from workbench.virtual_lab.writers import manifest_text as campaign_toml
+    from workbench.contract.toml_text import campaign_toml
 
     day = date or _dt.date.today().isoformat()
     head = {"schema": "workbench/campaign@1", "id": record["campaign_id"], "facility": "water_tunnel", "date": day,

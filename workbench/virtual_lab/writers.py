@@ -28,7 +28,7 @@ from workbench.contract.columns import (
     WRENCH_CHANNELS,
 )
 from workbench.contract.serial import FRAME_SIZE, counts_from_si, encode_frames
-from workbench.errors import ContractError
+from workbench.contract.toml_text import campaign_toml
 
 #: decimals written for every float column (1 us, 1 uN, 1 uN m, 1e-6 deg, 1 um)
 DECIMALS = 6
@@ -171,45 +171,8 @@ def mcap_towing_streams(lc: Mapping[str, np.ndarray], lc_log_ns: np.ndarray, car
 
 
 # ------------------------------------------------------------------------ campaign.toml
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not np.isfinite(v):
-            raise ContractError(f"non-finite value {v} in campaign.toml", hint="the contract's numbers are finite")
-        return repr(float(v))
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, np.generic):
-        return _toml_value(v.item())
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def manifest_text(head: Mapping[str, Any], tables: Mapping[str, Mapping[str, Any]],
-                  runs: Sequence[Mapping[str, Any]]) -> str:
-    """campaign.toml: top-level keys (``date`` as a TOML date), tables, then ``[[runs]]``."""
-    lines = []
-    for k, v in head.items():
-        lines.append(f"{k} = {v}" if k == "date" else f"{k} = {_toml_value(v)}")
-    for name, table in tables.items():
-        lines.append("")
-        lines.append(f"[{name}]")
-        for k, v in table.items():
-            if k == "calibration":
-                rows = ",\n".join("  " + _toml_value([float(x) for x in r]) for r in v)
-                lines.append(f"{k} = [\n{rows},\n]")
-            else:
-                lines.append(f"{k} = {_toml_value(v)}")
-    for run in runs:
-        lines.append("")
-        lines.append("[[runs]]")
-        for k, v in run.items():
-            lines.append(f"{k} = {_toml_value(v)}")
-    return "\n".join(lines) + "\n"
+#: the campaign.toml writer lives in the contract (plan-campaign writes its manifests with it too)
+manifest_text = campaign_toml
 
 
 def loadcell_table(lc: Any, forms: Sequence[str], calibration: Any) -> dict[str, Any]:
