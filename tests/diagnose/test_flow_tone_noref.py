@@ -86,3 +86,87 @@ def test_options_round_trip_and_bad_values_are_refused():
         FlowUnsteadiness(sensitivity="guess")
     with pytest.raises(ModelError, match="stroke_free"):
         FlowUnsteadiness(stroke_free="sometimes")
+
+
+def _tone_context(freqs: list[float], t: np.ndarray, u: float = 0.2, offset=None):
+    """A batch as the tone's columns see it: runs at ``freqs`` (Hz gait), their flow sensitivity ``_force``.
+
+    The model's flow sensitivity (a centred difference of the wrench at scaled flow speeds) is the
+    readings' quadratic here: the model is the test's own formula.
+    """
+    b = len(freqs)
+    mask = np.ones((b, len(t)), bool)
+    mask[:, :30] = mask[:, -30:] = False
+    rs = SimpleNamespace(run_ids=None, flow=np.full(b, u), fit=mask, freq=np.array(freqs), offset=offset,
+                         time_s=np.tile(t, (b, 1)))
+    return SimpleNamespace(rs=rs, time_s=rs.time_s, dt_s=DT,
+                           wrench_at_flow=lambda k: np.stack([_force(u * k, t, f) for f in freqs]))
+
+
+def test_runs_on_a_gait_harmonic_carry_the_tone_apart_and_the_nulls_keep_it():
+    from workbench.diagnose.effects.rig import FlowUnsteadiness
+    from workbench.diagnose.flowsens import without_stroke
+
+    t = np.arange(0, 4 / 0.3, DT)
+    ctx = _tone_context([0.3, 0.5, 0.6], t)              # 2 Hz: the 4th harmonic of 0.5 Hz only
+    e = FlowUnsteadiness(sensitivity="model", stroke_free="auto")
+    terms = e.force_terms(ctx, {"tone_hz": 2.0})
+    s1, c1, s2, c2 = terms.local
+    assert terms.local_names == ["tone_sin", "tone_cos", "tone_sin_h", "tone_cos_h"]
+    g = e.gain(ctx)
+    raw = g * np.sin(2 * np.pi * 2.0 * t)[None, :, None]
+    # the run on the harmonic: only the second pair, the tone's own column
+    assert np.all(s1[1] == 0) and np.allclose(s2[1], raw[1])
+    # the others: only the first pair, stroke-free (nothing left at the gait harmonics)
+    for i in (0, 2):
+        assert np.all(s2[i] == 0) and np.all(c2[i] == 0)
+        again = without_stroke(s1[i:i + 1], ctx.time_s[i:i + 1], ctx.rs.fit[i:i + 1], ctx.rs.freq[i:i + 1])
+        assert np.allclose(again, s1[i:i + 1], atol=1e-9 * np.abs(s1[i]).max())
+        assert np.sum(s1[i][ctx.rs.fit[i]] ** 2) > 0.5 * np.sum(raw[i][ctx.rs.fit[i]] ** 2)
+    # an off-peak null fit: the harmonic run keeps the candidate's columns (no evidence either way there)
+    null = e.force_terms(ctx, e.null_variants({"tone_hz": 2.0})[0])
+    assert np.allclose(null.local[2][1], s2[1]) and not np.allclose(null.local[0][0], s1[0])
+    # with a reference (an offset): the plain columns everywhere; outside a diagnosis: both pairs plain
+    ref = e.force_terms(_tone_context([0.3, 0.5, 0.6], t, offset=np.zeros(1)), {"tone_hz": 2.0})
+    assert np.allclose(ref.local[0], raw) and np.all(ref.local[2] == 0)
+    bare = SimpleNamespace(rs=SimpleNamespace(run_ids=None, flow=ctx.rs.flow), time_s=ctx.time_s, dt_s=DT,
+                           wrench_at_flow=ctx.wrench_at_flow)
+    out = e.force_terms(bare, {"tone_hz": 2.0})
+    assert np.allclose(out.local[0], raw) and np.allclose(out.local[2], raw)
+
+
+def _amplitude(cols, i, m, y):
+    """One run's tone amplitude by least squares on its columns (one coefficient pair over the six channels)."""
+    x = np.stack([c[i][m].ravel() for c in cols], axis=1)
+    return float(np.hypot(*np.linalg.lstsq(x, y[m].ravel(), rcond=None)[0]))
+
+
+def test_stroke_free_columns_measure_the_tone_under_a_large_stroke_locked_misfit():
+    """Per run, least squares on the stroke-free columns gives the planted amplitude; the plain ones do not."""
+    from workbench.diagnose.effects.rig import FlowUnsteadiness
+
+    t = np.arange(0, 4 / 0.3, DT)
+    freqs = [0.3, 0.45, 0.6]
+    ctx = _tone_context(freqs, t)
+    e = FlowUnsteadiness(sensitivity="model", stroke_free=True)
+    g = e.gain(ctx)
+    rng = np.random.default_rng(7)
+    amp = 0.05
+    for tone_hz in (1.05, 2.55):               # off every run's gait harmonics
+        terms = e.force_terms(ctx, {"tone_hz": tone_hz})
+        plain = FlowUnsteadiness(sensitivity="model", stroke_free=False).force_terms(
+            SimpleNamespace(**{**vars(ctx), "rs": SimpleNamespace(**{**vars(ctx.rs), "offset": np.zeros(1)})}),
+            {"tone_hz": tone_hz})
+        for i, f in enumerate(freqs):
+            m = ctx.rs.fit[i]
+            ph = rng.uniform(0, 2 * np.pi)
+            w = 2 * np.pi * f * t
+            # a misfit 30x the tone, periodic in the stroke, with harmonics up to 6 Hz
+            misfit = 30 * amp * np.abs(g[i]).max() * np.stack(
+                [sum(np.sin(k * w + rng.uniform(0, 6)) / k for k in range(1, int(6 / f) + 1)) for _ in range(6)], -1)
+            y = misfit + amp * g[i] * np.sin(2 * np.pi * tone_hz * t + ph)[:, None] \
+                + 1e-4 * rng.standard_normal((len(t), 6))
+
+            assert abs(_amplitude(terms.local[:2], i, m, y) - amp) < 0.05 * amp, (tone_hz, f)
+            if f == 0.3:
+                assert abs(_amplitude(plain.local[:2], i, m, y) - amp) > 0.2 * amp, tone_hz

@@ -11,6 +11,7 @@ import numpy as np
 from scipy import signal
 
 from workbench.contract.columns import WRENCH_CHANNELS
+from workbench.diagnose.chain import Active
 from workbench.diagnose.effects.base import Context, Effect, SearchParam, Terms
 from workbench.diagnose.evidence import ccf_clause, flow_tone_peaks, peaks
 from workbench.hydro.motion import LegMotion
@@ -228,8 +229,10 @@ class FlowUnsteadiness(Effect):
     """U(t) = U (1 + tone_fraction sin(2 pi tone_hz t) + coloured noise of RMS rms_fraction).
 
     The tone enters as per-run columns ``g(t) sin(2 pi f t)``, ``g(t) cos(2 pi f t)`` with
-    ``g = U dM/dU`` (its phase in each run is a nuisance fitted per run); the tone frequency is
-    proposed by a narrowband residual peak and refined by search. The noise part cannot be
+    ``g = U dF/dU`` measured across the campaign's flow speeds (else the model's ``U dM/dU``; its
+    phase in each run is a nuisance fitted per run), stroke-free without a reference
+    (:meth:`force_terms`); the tone frequency is proposed by a flow-carried line of the residual
+    and refined by search. The noise part cannot be
     predicted; its RMS is estimated from how the residual variance grows with g^2.
     """
 
@@ -246,10 +249,13 @@ class FlowUnsteadiness(Effect):
     def __init__(self, sensitivity: str = "measured", stroke_free: str | bool = False):
         """``sensitivity``: ``measured`` (across the campaign's flow speeds, else the model's) or ``model``.
 
-        ``stroke_free``: project each run's stroke-locked part out of the tone's columns (and leave
-        out runs where the tone sits on a gait harmonic); ``auto``: when no reference campaign has
-        taken the base model's stroke-locked misfit out. Off by default: on the rich tunnel without
-        a reference it removed the tone's line but halved the held-out t statistic (docs/diagnose.md).
+        ``stroke_free``: project each run's stroke-locked part out of the tone's columns, in the
+        runs whose gait harmonics miss the tone (:meth:`force_terms`); ``auto``: when no reference
+        campaign has taken the base model's stroke-locked misfit out; ``false`` (default): the
+        plain columns ``g sin``, ``g cos`` in every run. Off by default: without a reference the
+        held-out test of the stroke-free columns has only the held-out runs whose harmonics miss
+        the tone (docs/diagnose.md). The line check uses stroke-free columns without a reference
+        whatever this option says (:meth:`check`).
         """
         from workbench.errors import ModelError
 
@@ -261,6 +267,7 @@ class FlowUnsteadiness(Effect):
         self.stroke_free = stroke_free
         self._measured: dict = {}
         self._measured_for = None
+        self._anchors: list[float] = []
 
     def options(self) -> dict:  # noqa: D102
         return {"sensitivity": self.sensitivity, "stroke_free": self.stroke_free}
@@ -324,6 +331,8 @@ class FlowUnsteadiness(Effect):
         for p in probe.peaks_of(config, fit):
             if all(abs(p.frequency_hz - q.frequency_hz) > 0.1 for q in out):
                 out.append(p)
+        # the lines the candidates are searched around (which runs sit on a harmonic: _mask_hz)
+        self._anchors = sorted({*self._anchors, *(float(p.frequency_hz) for p in out)})
         return out
 
     def check(self, cand, probe, config, fit) -> str | None:
@@ -337,7 +346,7 @@ class FlowUnsteadiness(Effect):
             if hit:
                 return (f"the {f0:.2f} Hz line is there at zero flow too ({', '.join(hit[0].channels)}): "
                         "not carried by the flow")
-        after = probe.run_residuals(cand.config, cand.fit)
+        after = probe.run_residuals(*self._line_fit(cand, probe))
         left = [p for p in peaks(after, s.evidence, probe.cutoff) if abs(p.frequency_hz - f0) < 0.1]
         if not left:
             return None
@@ -354,6 +363,26 @@ class FlowUnsteadiness(Effect):
                     f"({ea:.0f} of {eb:.0f} excess power ratio)")
         return None
 
+    def _line_fit(self, cand, probe):
+        """The configuration and fit whose residual must have lost the tone's line.
+
+        Without a reference the plain columns' per-run amplitude and phase are pulled by the base
+        model's stroke-locked misfit (a thousand times the noise on the rich tunnel), which leaves
+        part of the line although the tone is carried by the flow. The line is measured on the
+        stroke-free remainder, so it is judged after the same tone fitted with stroke-free columns
+        (a joint fit with each run's stroke-locked waveform); a vibration or an electrical line
+        at that frequency is not carried by ``g`` and stays either way.
+        """
+        problem = probe.problem
+        sets = problem.campaign.sets
+        if "stroke_free" in cand.active.nl or not sets or getattr(sets[0], "offset", None) is not None:
+            return cand.config, cand.fit
+        if self.stroke_free in (True, "auto"):
+            return cand.config, cand.fit
+        nl = {**cand.active.nl, "stroke_free": 1.0}
+        cfg = cand.config.without(self.name).with_effect(Active(self, nl))
+        return cfg, problem.fit(cfg, cand.fit.coefs(), cand.names)
+
     def complete(self, params: dict, stderr: dict, problem, config, residuals: list) -> None:
         """The noise part's RMS, from how the final residual variance grows with g^2."""
         params["rms_fraction"], stderr["rms_fraction"] = flow_noise_rms(
@@ -365,38 +394,90 @@ class FlowUnsteadiness(Effect):
     def hint(self, ev, params: dict) -> str:  # noqa: D102
         return f"a tone at {params.get('tone_hz', float('nan')):.2f} Hz rides on the flow sensitivity of the force"
 
-    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+    #: per-run columns: the tone where the run can tell it from the stroke, and where it cannot
+    LOCAL = ("tone_sin", "tone_cos", "tone_sin_h", "tone_cos_h")
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:
+        """Per-run columns ``g sin``, ``g cos`` of the tone; stroke-free ones where the run can tell it from the stroke.
+
+        Stroke-free (no reference, or option ``true``): in runs whose gait harmonics miss the tone,
+        the run's stroke-locked part is projected out of the columns (``flowsens.without_stroke``;
+        regressing the residual on them then equals a joint fit with a free stroke-locked
+        waveform, so the base model's misfit does not set the tone's amplitude and phase). Runs
+        whose harmonics hit the tone carry it in a second pair of columns (``*_h``) that is the
+        same in the off-peak null fits (``mask_hz``): there the tone cannot be told from the
+        stroke-locked misfit, so those runs take no part in the tone's test nor in its fraction,
+        but their error is still fitted. Outside a diagnosis (an augmented model predicting a run)
+        both pairs carry the tone's own columns, so a run's fitted values predict ``g sin`` itself.
+        """
         g = self.gain(ctx)
         ph = 2 * np.pi * nl["tone_hz"] * ctx.time_s
-        cols = [g * np.sin(ph)[..., None], g * np.cos(ph)[..., None]]
+        raw = [g * np.sin(ph)[..., None], g * np.cos(ph)[..., None]]
         rs = ctx.rs
-        free = self.stroke_free if self.stroke_free != "auto" else getattr(rs, "offset", None) is None
-        if free and all(hasattr(rs, k) for k in ("fit", "freq")):
-            from workbench.diagnose.flowsens import on_harmonic, without_stroke
+        if not all(hasattr(rs, k) for k in ("fit", "freq")):
+            return Terms(local_names=list(self.LOCAL), local=raw + raw)
+        zero = np.zeros_like(raw[0])
+        if not self._free(rs, nl):
+            return Terms(local_names=list(self.LOCAL), local=raw + [zero, zero])
+        from workbench.diagnose.flowsens import on_harmonic, without_stroke
 
-            freq = np.asarray(rs.freq, float)
-            cols = [without_stroke(c, ctx.time_s, rs.fit, freq) for c in cols]
-            # runs where the tone sits on a gait harmonic cannot tell it from the stroke-locked
-            # misfit: they carry no tone. The null variants (off-peak frequencies) leave out the
-            # same runs (``mask_hz``), so that the nuisance fit's null is judged on equal terms.
-            dur = np.asarray(rs.fit, bool).sum(axis=1) * ctx.dt_s
-            drop = on_harmonic(float(nl.get("mask_hz", nl["tone_hz"])), freq, dur)
-            cols = [np.where(drop[:, None, None], 0.0, c) for c in cols]
-        return Terms(local_names=["tone_sin", "tone_cos"], local=cols)
+        freq = np.asarray(rs.freq, float)
+        dur = np.asarray(rs.fit, bool).sum(axis=1) * ctx.dt_s
+        hit = on_harmonic(self._mask_hz(nl), freq, dur)[:, None, None]
+        if "mask_hz" in nl:
+            # an off-peak null fit: the runs on a harmonic keep the candidate's own columns
+            ph0 = 2 * np.pi * nl["mask_hz"] * ctx.time_s
+            held = [g * np.sin(ph0)[..., None], g * np.cos(ph0)[..., None]]
+        else:
+            held = raw
+        # every gait harmonic below the low-pass cutoff (a slow gait has more than the evidence's 12)
+        free_cols = [without_stroke(c, ctx.time_s, rs.fit, freq, max_harmonics=24) for c in raw]
+        return Terms(local_names=list(self.LOCAL),
+                     local=[np.where(hit, 0.0, c) for c in free_cols] + [np.where(hit, c, 0.0) for c in held])
+
+    def _free(self, rs, nl: dict) -> bool:
+        """Stroke-free columns: ``nl["stroke_free"]`` (the line check's fit) or the option (``auto``: no reference)."""
+        if "stroke_free" in nl:
+            return bool(nl["stroke_free"])
+        if self.stroke_free == "auto":
+            return getattr(rs, "offset", None) is None
+        return bool(self.stroke_free)
+
+    def _mask_hz(self, nl: dict) -> float:
+        """The frequency that decides which runs sit on a gait harmonic: the line the candidate was proposed for.
+
+        Held while the search moves ``tone_hz`` around that line, so that no run changes sides
+        during it (a run on a harmonic fits part of the stroke-locked misfit as well, which
+        would otherwise pull the search onto gait harmonics).
+        """
+        if "mask_hz" in nl:
+            return float(nl["mask_hz"])
+        f = float(nl["tone_hz"])
+        near = [a for a in self._anchors if abs(a - f) <= 0.2]
+        return min(near, key=lambda a: abs(a - f)) if near else f
 
     def null_variants(self, nl: dict) -> list[dict]:  # noqa: D102
         f = nl["tone_hz"]
-        return [{"tone_hz": f + d, "mask_hz": f} for d in (-0.35, 0.35) if f + d > 0.05]
+        extra = {"stroke_free": nl["stroke_free"]} if "stroke_free" in nl else {}
+        return [{"tone_hz": f + d, "mask_hz": f, **extra} for d in (-0.35, 0.35) if f + d > 0.05]
 
     def canonical_params(self, coefs, nl, cov, local=None):  # noqa: D102
         params = {"tone_hz": nl["tone_hz"], "tone_fraction": float("nan"), "rms_fraction": None}
         se = {"tone_hz": float(np.sqrt(max(cov.get(("tone_hz", "tone_hz"), np.nan), 0)))}
         if local:
-            a, wa, flow = local["tone_sin"]
-            b, _, _ = local["tone_cos"]
-            wa = np.where(flow > 0, wa, 0.0)  # runs without flow carry no tone
-            amp = np.hypot(a, b)
-            ok = np.isfinite(amp) & (wa > 0)
+            # the runs that can tell the tone from the stroke; only where none can, those on a harmonic
+            # (their amplitude holds the stroke-locked misfit's share at that harmonic as well)
+            ok = np.zeros(0, bool)
+            for pair in (("tone_sin", "tone_cos"), ("tone_sin_h", "tone_cos_h")):
+                if pair[0] not in local:
+                    continue
+                a, wa, flow = local[pair[0]]
+                b, _, _ = local[pair[1]]
+                wa = np.where(flow > 0, wa, 0.0)  # runs without flow carry no tone
+                amp = np.hypot(a, b)
+                ok = np.isfinite(amp) & (wa > 0)
+                if ok.any():
+                    break
             if ok.any():
                 w = wa[ok] / wa[ok].sum()
                 params["tone_fraction"] = float(np.sum(w * amp[ok]))
