@@ -80,12 +80,24 @@ def pty_pair():
     os.close(slave)
 
 
+def _fd_target(fd: str) -> str | None:
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}")
+    except OSError:
+        return None
+
+
 def test_cli_records_a_pty_for_a_duration(tmp_path, pty_pair, capsys):
     master, port = pty_pair
     data = capture(n=1500)
 
     def feed():
-        time.sleep(0.3)
+        # write once the recorder has opened the port (pyserial's open empties its input buffer): a second
+        # descriptor of this process on the slave; a fixed sleep lost the first frames on a loaded machine
+        deadline = time.monotonic() + 30
+        while sum(_fd_target(fd) == port for fd in os.listdir("/proc/self/fd")) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.05)
         for i in range(0, len(data), 2048):
             os.write(master, data[i:i + 2048])
             time.sleep(0.005)
