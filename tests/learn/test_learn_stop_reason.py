@@ -21,9 +21,9 @@ def test_all_epochs_run_is_reported_as_max_epochs(prepared, parquet, tmp_path):
     from workbench.learn.train import train
 
     cfg = tiny_config(parquet, tmp_path, **{"tracking.enabled": False, "trainer.max_epochs": 2})
-    metrics, _ = train(cfg, prepared=prepared)
+    metrics, objects = train(cfg, prepared=prepared)
     assert metrics["stop_reason"] == "max_epochs" and metrics["epochs"] == 2
-    saved = json.loads((tmp_path / "datasets" / "models" / "fed-lstm" / "metrics.json").read_text())
+    saved = json.loads(objects["card"]["metrics.json"])  # the model folder's metrics.json, as the command writes it
     assert saved["stop_reason"] == "max_epochs" and saved["stop_detail"] == "max_epochs=2 reached"
 
 
