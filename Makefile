@@ -44,10 +44,12 @@ test: setup system-deps
 
 # under 2 minutes on an idle 2-core machine (docs/testing.md); the slowest tests are listed at the end.
 # The -p no: flags skip pytest plugins that third-party packages install and no test uses (about 1 s of
-# start-up CPU: hydra-core's plugin imports hydra).
+# start-up CPU: hydra-core's plugin imports hydra). Two pytest-xdist workers, one test file each at a time
+# (a module's fixtures stay in one process); FAST_WORKERS=0 runs everything in this process.
 FAST_PLUGINS_OFF := -p no:hydra_pytest -p no:anyio -p no:platformdirs
+FAST_WORKERS ?= 2
 test-fast: setup
-	$(BIN)/python -m pytest -q -m "not slow" $(FAST_PLUGINS_OFF) --durations=10
+	$(BIN)/python -m pytest -q -m "not slow" $(FAST_PLUGINS_OFF) -n $(FAST_WORKERS) --dist loadfile --durations=10
 
 # the paper's study end to end in a scratch copy of this commit, timed per stage (docs/pipeline.md)
 paper: setup
