@@ -230,10 +230,10 @@ class FlowUnsteadiness(Effect):
 
     The tone enters as per-run columns ``g(t) sin(2 pi f t)``, ``g(t) cos(2 pi f t)`` with
     ``g = U dF/dU`` measured across the campaign's flow speeds (else the model's ``U dM/dU``; its
-    phase in each run is a nuisance fitted per run), stroke-free without a reference
-    (:meth:`force_terms`); the tone frequency is proposed by a flow-carried line of the residual
-    and refined by search. The noise part cannot be
-    predicted; its RMS is estimated from how the residual variance grows with g^2.
+    phase in each run is a nuisance fitted per run), optionally stroke-free (:meth:`force_terms`;
+    without a reference the line check always fits them so, :meth:`_line_fit`); the tone
+    frequency is proposed by a flow-carried line of the residual and refined by search. The noise
+    part cannot be predicted; its RMS is estimated from how the residual variance grows with g^2.
     """
 
     name = "flow_unsteadiness"
