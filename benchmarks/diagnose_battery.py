@@ -44,9 +44,12 @@ def main() -> int:
     for model in args.model.split(","):
         for with_ref in modes:
             cases = B.all_cases(with_ref)
-            if args.cases:
-                want = set(args.cases.split(","))
-                cases = [c for c in B.all_cases(False) if c.name in want]
+            if args.cases:  # in the order given (pairs as a+b)
+                by_name = {c.name: c for c in B.all_cases(False)}
+                unknown = [n for n in args.cases.split(",") if n not in by_name]
+                if unknown:
+                    ap.error(f"unknown case(s) {', '.join(unknown)}; known: {', '.join(by_name)}")
+                cases = [by_name[n] for n in args.cases.split(",")]
             clean = bench.clean(model, with_ref)
             print(f"clean campaign, {model} {'with' if with_ref else 'without'} reference: claims "
                   f"{[e.name for e in clean.effects] or 'nothing'}", flush=True)

@@ -7,6 +7,8 @@ the report and the augmented model are written from). No files are touched here.
 
 from __future__ import annotations
 
+import contextlib
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
@@ -306,6 +308,31 @@ def one_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
+@contextlib.contextmanager
+def torch_threads_for_load():
+    """Torch's intra-op threads set to the cores idle now (``workbench.threads`` ``auto``), restored after.
+
+    Only when torch is already loaded (a learned base model such as the FED-LSTM); an EF
+    diagnosis never imports it. Two OpenMP threads on a two-core machine that other jobs share
+    wait on each other whenever one is descheduled: profiled on the demo campaign under a load
+    average of 13, ``torch.lstm`` took 160 s of wall time for a run whose whole process used
+    84 s of CPU. One thread per idle core keeps the model runs compute-bound.
+    """
+    torch = sys.modules.get("torch")
+    if torch is None:
+        yield None
+        return
+    from workbench.threads import resolve
+
+    old = torch.get_num_threads()
+    n = resolve("auto")
+    torch.set_num_threads(n)
+    try:
+        yield n
+    finally:
+        torch.set_num_threads(old)
+
+
 def _chunks_for(model, data: DataSettings) -> DataSettings:
     """Smaller batches for an expensive model: every padded tick costs a model run (a 32-step LSTM)."""
     import dataclasses
@@ -336,7 +363,7 @@ def diagnose(frame, model, model_spec: str = "model", settings: DiagnoseSettings
     model's stroke-locked misfit there (``workbench.diagnose.reference``) is taken out of this
     campaign's readings first, so that only what changed since the reference is diagnosed.
     """
-    with one_blas_thread():
+    with one_blas_thread(), torch_threads_for_load():
         return _diagnose(frame, model, model_spec, settings, library, selection, lowpass, progress, source,
                          reference, reference_source)
 
