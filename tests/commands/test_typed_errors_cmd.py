@@ -67,6 +67,12 @@ def test_sensitivity_names_the_gaits_file_and_the_key_or_gait(tmp_path, capsys):
     assert main(["sensitivity", "--gaits", str(bad_key), "--n", "2", "--out", str(tmp_path / "o")]) == 2
     err = _error(capsys)
     assert err.startswith(f"error: {bad_key}, settings.task.finish_distanc_m: unknown setting") and "finish_distance_m" in err
+    bad_sim = _gaits_file(tmp_path / "sim.json")
+    doc = json.loads(bad_sim.read_text())
+    doc["settings"]["simulation"] = {"max_iter": "many"}      # the scheme the gaits were optimised with
+    bad_sim.write_text(json.dumps(doc))
+    assert main(["sensitivity", "--gaits", str(bad_sim), "--n", "2", "--out", str(tmp_path / "o")]) == 2
+    assert _error(capsys).startswith(f"error: {bad_sim}, settings.simulation.max_iter: must be")
     bad_gait = _gaits_file(tmp_path / "gait.json", frequency_hz=0.0)
     assert main(["sensitivity", "--gaits", str(bad_gait), "--n", "2", "--out", str(tmp_path / "o")]) == 2
     assert _error(capsys) == f"error: {bad_gait}, straight-ef #2: gait parameters must be finite with positive frequency"

@@ -47,6 +47,7 @@ def run(args) -> int:
     from workbench.gait.sensitivity import FACTORS, figure_png, run_sensitivity
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
+    from workbench.hydro.simulator import simulation_settings
 
     gaits = read_gaits_file(args.gaits, None)[: max(args.best, 2)]
     doc = read_json(Path(args.gaits), "gaits file")
@@ -58,8 +59,11 @@ def run(args) -> int:
     batch = gait_batch(gaits, {label: args.gaits for label, _ in gaits})
     settings = robot_simulation_settings(args.robot)
     settings["duration_s"] = spec.cap_s
-    settings.update({k: v for k, v in ((doc.get("settings") or {}).get("simulation") or {}).items()
-                     if k in ("dt_s", "tol_mps", "max_iter", "relaxation")})
+    # the scheme the gaits were optimised with (checked: a bad value names the gaits file and its key)
+    stored = (doc.get("settings") or {}).get("simulation") or {}
+    settings.update(simulation_settings({k: v for k, v in (stored.items() if isinstance(stored, dict) else ())
+                                         if k in ("dt_s", "tol_mps", "max_iter", "relaxation")},
+                                        path=args.gaits, key="settings.simulation"))
     robot = load_robot(args.robot)
     model = load_leg_model(args.model)
     total = args.n * (len(FACTORS) + 2)
