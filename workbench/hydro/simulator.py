@@ -347,6 +347,11 @@ class BodyDrag:
 
     def planar(self, v: np.ndarray) -> np.ndarray:
         """Drag (B, 3) = (fx, fy, tz) for body velocities ``v`` (B, 3) = (vx, vy, r)."""
+        if v.shape[0] == 1:
+            # numpy's product of a single row takes another kernel (a vector-matrix product) whose last bits
+            # differ: a gait swum alone (a worker's part, the last gait still iterating) must get the numbers
+            # it gets in company (docs/gaits.md "Workers"), so one row goes through as two
+            return self.planar(np.concatenate([v, v]))[:1]
         u = v @ self._p
         speed = np.abs(u)
         mag = (self._c2 * speed + self._c1) * speed + self._c0
