@@ -265,8 +265,9 @@ def _improvement_table(summary: dict) -> tuple[str, list[str], list[list[str]]] 
                                      f"{100 * float(imp):+.1f} %" if isinstance(imp, (int, float)) else "-"])
     if not rows:
         return None
-    return ("Improvement over EF, (EF - model) / EF: positive is better (unfinished trials count as the 60 s cap)",
-            ["task", "model", "over", "score", "EF", "model", "improvement"], rows)
+    base = str((summary.get("comparison") or {}).get("baseline") or "EF")
+    return (f"Improvement over {base}, ({base} - model) / {base}: positive is better (unfinished trials count as the "
+            "60 s cap)", ["task", "model", "over", "score", base, "model", "improvement"], rows)
 
 
 def trials_section(datasets: Path) -> Section:
