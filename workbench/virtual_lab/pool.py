@@ -28,6 +28,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from workbench.contract.toml_text import toml_value
 from workbench.errors import ContractError
 from workbench.virtual_lab.pool_cli import EXAMPLES, add_cli
 from workbench.virtual_lab.pool_render import Scene, TiltedCamera, render_all, render_trial
@@ -76,15 +77,12 @@ def true_scores(task: str, t_s, x_tank, y_tank, yaw_tank) -> dict:
 
 
 def _toml_value(v) -> str:
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, float):
-        return repr(round(v, 4))
-    return str(v)
+    """The contract's TOML value (contract/toml_text.py), floats rounded to 4 decimals as trials.toml has them."""
+    def rounded(x):
+        if isinstance(x, (list, tuple)):
+            return [rounded(y) for y in x]
+        return round(x, 4) if isinstance(x, float) else x
+    return toml_value(rounded(v))
 
 
 def manifest_text(trials_id: str, s: PoolSettings, reference_px, reference_m, trials: Sequence[dict]) -> str:
@@ -175,7 +173,7 @@ def generate_pool(out_dir: str | Path, trials: Sequence[PoolTrial] | None = None
                     bar.advance(1, tid)
         (tmp / "trials.toml").write_text(manifest_text(s.trials_id, s, ref_px, corners, entries), encoding="utf-8")
         truth = {"note": "virtual pool ground truth; not part of the data contract",
-                 "seed": s.seed, "settings": _jsonable({k: v for k, v in asdict(s).items() if k != "workers"}),
+                 "seed": s.seed, "settings": {k: v for k, v in asdict(s).items() if k != "workers"},
                  "camera": {"h_m2px": cam.h_m2px.tolist(), "k": cam.k.tolist()},
                  "yaw_convention": "counter-clockwise from the robot facing tank +Y; body +y forward",
                  "trials": truth_trials}
