@@ -464,7 +464,7 @@ class StepwiseSelection:
             before = config.nl_values()
             config, current = self._refine(problem, config, path.coefs, names, current)
             if self._following(problem):
-                config, names, current, steps = self._drop_refused(problem, config, names, current, steps)
+                config, names, current, steps, table = self._drop_refused(problem, config, names, current, steps, table)
             moved = any(a.effect.lookahead and any(abs(v - before.get(f"{a.name}.{k}", np.nan)) > 1e-9
                                                    for k, v in a.nl.items()) for a in config.actives)
             if more is not None and moved and self._following(problem):
@@ -476,24 +476,29 @@ class StepwiseSelection:
                 if len(go.config.actives) > len(config.actives):
                     config, names, current, steps, table = go.config, go.names, go.current, go.steps, go.table
                     config, current = self._refine(problem, config, current.coefs(), names, current)
-                    config, names, current, steps = self._drop_refused(problem, config, names, current, steps)
+                    config, names, current, steps, table = self._drop_refused(problem, config, names, current, steps, table)
         config, names, current, steps = self._backward_check(problem, config, names, current, steps)
         return SelectionResult(config, names, current, steps, table)
 
-    def _drop_refused(self, problem, config, names, current, steps):
+    def _drop_refused(self, problem, config, names, current, steps, table):
         """Drop effects whose refined searched values are refused or implausible, refining the rest each time.
 
         A candidate is judged with the values of its step; the final refinement moves them (a mode
         taken at zeta 0.27 beside an 11 ms lag refined to zeta 0.62 with a 25 ms dead time's
         remainder in it). Such an effect is another effect in disguise and held the others where
         they fitted around it: it goes *before* the others are final, and they are refined again.
+        The selection record (``table``) keeps a row saying so.
         """
+        table = list(table)
         while True:
             why = {a.name: a.effect.refusal(dict(a.nl), self.settings) or a.effect.implausible(dict(a.nl))
                    for a in config.actives if a.effect.search}
             bad = [n for n, w in why.items() if w]
             if not bad:
-                return config, names, current, steps
+                return config, names, current, steps, table
+            label = ", ".join(f"{k}={v:.3g}" for k, v in next(a for a in config.actives if a.name == bad[0]).nl.items())
+            table.append({"effect": bad[0], "label": f"{bad[0]}({label})", "t": 0.0, "p": 1.0, "llr": 0.0,
+                          "max_gain": 0.0, "ok": False, "note": f"dropped after the final refinement: {why[bad[0]]}"})
             config = config.without(bad[0])
             names = [n for n in names if not n.startswith(bad[0] + ".")]
             steps = [st for st in steps if st.candidate.effect.name != bad[0]]
