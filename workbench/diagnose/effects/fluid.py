@@ -76,16 +76,8 @@ class Lift(_UnitTermEffect):
     param, unit = "cl", "lift_unit"
 
 
-class LinkDrag(Effect):
-    """Cross-flow drag of thigh (O-C) and calf (B to the web's near edge): 0.5 rho cd_d_m |V_n| V_n per length."""
-
-    name = "link_drag"
-    ranges = {"cd_d_m": (-0.1, 0.1)}
-    formula = "dF/dl = 0.5 rho cd_d_m |V_n| V_n along thigh and calf"
-
-    @classmethod
-    def truth_params(cls, t):  # noqa: D102
-        return {"cd_d_m": t.p.get("link_cd_d_m", 0.0) + t.p.get("extra_link_cd_d_m", 0.0)}
+class _LinkQuadrature(Effect):
+    """An effect integrated along thigh and calf: Gauss points ``quadrature`` per link, ``x_m`` from the joints."""
 
     library_options = {"link_x_m": "x_m", "link_quadrature": "quadrature"}
 
@@ -95,6 +87,18 @@ class LinkDrag(Effect):
 
     def options(self) -> dict:  # noqa: D102
         return {"x_m": self.x_m, "quadrature": self.quadrature}
+
+
+class LinkDrag(_LinkQuadrature):
+    """Cross-flow drag of thigh (O-C) and calf (B to the web's near edge): 0.5 rho cd_d_m |V_n| V_n per length."""
+
+    name = "link_drag"
+    ranges = {"cd_d_m": (-0.1, 0.1)}
+    formula = "dF/dl = 0.5 rho cd_d_m |V_n| V_n along thigh and calf"
+
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"cd_d_m": t.p.get("link_cd_d_m", 0.0) + t.p.get("extra_link_cd_d_m", 0.0)}
 
     def linear_names(self):  # noqa: D102
         return ["cd_d_m"]
@@ -341,7 +345,7 @@ class AddedMassKC(Effect):
         return Terms(["m_kc_kg"], [col], [ALL_CHANNELS])
 
 
-class LinkInertia(Effect):
+class LinkInertia(_LinkQuadrature):
     """Inertia of the links and the web's tangential inertia: -m a along thigh and calf, -m_t a_t at Q.
 
     ``m_kgpm``: mass per length of thigh and calf (structure plus added mass; at this rig's
@@ -362,15 +366,6 @@ class LinkInertia(Effect):
     def truth_notes(cls, t):  # noqa: D102
         return {"m_kgpm": f"structure {t.structure_kgpm:.3g} kg/m on the whole acceleration + added mass "
                           f"{t.link_added_kgpm:.3g} kg/m along the links' normal only"}
-
-    library_options = {"link_x_m": "x_m", "link_quadrature": "quadrature"}
-
-    def __init__(self, x_m: float = 0.01, quadrature: int = 4):
-        self.x_m = float(x_m)
-        self.quadrature = int(quadrature)
-
-    def options(self) -> dict:  # noqa: D102
-        return {"x_m": self.x_m, "quadrature": self.quadrature}
 
     def linear_names(self):  # noqa: D102
         return ["m_kgpm", "web_t_kg"]
@@ -430,7 +425,7 @@ class LateralForce(Effect):
         return Terms(["c_lat"], [kin._memo(("lateral",), make)], [ALL_CHANNELS])
 
 
-class LinkWeightBuoyancy(Effect):
+class LinkWeightBuoyancy(_LinkQuadrature):
     """Weight minus buoyancy spread over thigh, calf (evenly along each) and web (at Q): net_<part>_n, + up."""
 
     name = "link_weight_buoyancy"
@@ -442,15 +437,6 @@ class LinkWeightBuoyancy(Effect):
         net = t.net
         return {"net_thigh_n": net["thigh"], "net_calf_n": net["calf"], "net_web_n": net["web"],
                 "net_n": sum(net.values())}
-
-    library_options = {"link_x_m": "x_m", "link_quadrature": "quadrature"}
-
-    def __init__(self, x_m: float = 0.01, quadrature: int = 4):
-        self.x_m = float(x_m)
-        self.quadrature = int(quadrature)
-
-    def options(self) -> dict:  # noqa: D102
-        return {"x_m": self.x_m, "quadrature": self.quadrature}
 
     def linear_names(self):  # noqa: D102
         return ["net_thigh_n", "net_calf_n", "net_web_n"]
