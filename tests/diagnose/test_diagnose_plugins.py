@@ -24,7 +24,9 @@ from workbench.errors import ModelError
 ROOT = Path(__file__).resolve().parents[2]
 PKG = ROOT / "workbench" / "diagnose"
 #: the code that runs the diagnosis: it asks effects through their hooks and never names one
-GENERIC = ["loop.py", "selection.py", "problem.py", "chain.py", "lsq.py", "data.py", "evidence.py"]
+GENERIC = ["loop.py", "loop_claims.py", "loop_results.py", "loop_settings.py", "loop_threads.py", "selection.py",
+           "problem.py", "chain.py", "lsq.py", "data.py", "evidence.py", "evidence_base.py", "evidence_locked.py",
+           "evidence_lines.py", "evidence_tones.py", "evidence_dependence.py"]
 
 
 class HipSpring(Effect):

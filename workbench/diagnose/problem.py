@@ -168,7 +168,7 @@ def _reads_prediction(config: Configuration) -> bool:
 
 def run_residuals(problem: Problem, config: Configuration, fit: lsq.Fit | None = None):
     """Every run's measured and predicted wrench under ``config`` fitted by ``fit`` (all ticks)."""
-    from workbench.diagnose.evidence import RunResidual
+    from workbench.diagnose.evidence_base import RunResidual
 
     coefs = fit.coefs() if fit is not None else {}
     out = []

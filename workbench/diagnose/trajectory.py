@@ -370,7 +370,7 @@ def usable(tracks: list[Track], sims: list[SimTrack | None]) -> tuple[list[Track
 def diagnose_trajectories(tracks: list[Track], sims: list[SimTrack | None], model: str = "model",
                           settings: TrajectorySettings | None = None, base: str = "simulator") -> TrajectoryDiagnosis:
     """Which trajectory effects (current, yaw drift) the tracked trials show beyond the base; errors before/after."""
-    from workbench.diagnose.loop import one_blas_thread
+    from workbench.diagnose.loop_threads import one_blas_thread
 
     with one_blas_thread():
         return _diagnose_trajectories(tracks, sims, model, settings or TrajectorySettings(), base)

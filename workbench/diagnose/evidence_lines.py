@@ -1,0 +1,163 @@
+"""Spectral evidence: the Welch spectrum of the non-locked residual and its narrowband lines.
+
+The rest of the residual (what does not repeat every stroke) is averaged into a Welch spectrum;
+narrowband peaks are found by their ratio to a running-median floor, with a chi-square test at
+the spectrum's degrees of freedom. :func:`peaks` scans each run at full-run resolution and keeps
+only lines locked to nothing the rig does (every run has its own gait frequency; a line on a
+gait harmonic must stand on its own in the runs whose harmonics miss it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal, stats
+
+from workbench.contract.columns import WRENCH_CHANNELS
+from workbench.diagnose.evidence_base import EvidenceSettings, Peak, RunResidual
+from workbench.diagnose.evidence_locked import gait_locked, harmonic_tolerance
+
+
+def _segment(n_ticks: int, dt: float, seconds: float) -> int:
+    return int(max(16, min(n_ticks, round(seconds / dt))))
+
+
+def rest_spectrum(runs: list[RunResidual], parts: list[np.ndarray], s: EvidenceSettings):
+    """Welch spectrum of the non-locked residual, averaged over runs; returns freqs, psd, dof."""
+    dt = runs[0].dt_s
+    lengths = [len(p) for p in parts if len(p) >= 16]
+    if not lengths:
+        return np.zeros(1), np.zeros((1, 6)), 1.0
+    nper = _segment(min(lengths), dt, s.welch_segment_s)
+    acc, wsum, nseg = None, 0.0, 0.0
+    for p in parts:
+        if len(p) < nper:
+            continue
+        f, pxx = signal.welch(p, fs=1 / dt, nperseg=nper, noverlap=nper // 2, detrend="linear", axis=0)
+        segs = 1 + (len(p) - nper) // (nper - nper // 2)
+        acc = pxx * segs if acc is None else acc + pxx * segs
+        wsum += segs
+        nseg += segs
+    psd = acc / wsum
+    # Hann with 50 % overlap: about 1.9 equivalent independent segments per overlapping pair
+    dof = 2.0 * nseg * 0.95
+    return f, psd, dof
+
+
+def spectral_floor(freqs: np.ndarray, psd: np.ndarray, window_hz: float) -> np.ndarray:
+    """Running median of the spectrum (a narrow peak does not lift it)."""
+    df = freqs[1] - freqs[0] if len(freqs) > 1 else 1.0
+    half = max(2, int(round(window_hz / df / 2)))
+    out = np.empty_like(psd)
+    for i in range(len(freqs)):
+        lo, hi = max(0, i - half), min(len(freqs), i + half + 1)
+        out[i] = np.median(psd[lo:hi], axis=0)
+    return np.maximum(out, 1e-300)
+
+
+def find_peaks(freqs, psd, floor, dof, s: EvidenceSettings) -> list[Peak]:
+    """Narrowband peaks: bins whose ratio to the floor is large and significant, grouped across channels."""
+    band = (freqs >= s.fmin_hz) & (freqs <= s.fmax_hz)
+    nb = max(1, int(band.sum()))
+    ratio = psd / floor
+    # Under noise, psd/floor ~ chi2(dof)/dof; Bonferroni over bins and channels.
+    nc = psd.shape[1]
+    crit = stats.chi2.isf(s.peak_alpha / (nb * nc), dof) / dof
+    hit = band[:, None] & (ratio >= max(s.peak_ratio, crit))
+    peaks: list[Peak] = []
+    rows = np.flatnonzero(hit.any(axis=1))
+    groups: list[list[int]] = []
+    for i in rows:
+        if groups and i - groups[-1][-1] <= 1:
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    for g in groups:
+        g = np.array(g)
+        score = (ratio[g] * hit[g]).max(axis=1)
+        i = int(g[np.argmax(score)])
+        chans = [WRENCH_CHANNELS[c] for c in range(nc) if hit[g, c].any()]
+        # parabolic interpolation of the peak in the strongest channel
+        c0 = int(np.argmax(ratio[i]))
+        fi = freqs[i]
+        if 0 < i < len(freqs) - 1:
+            y0, y1, y2 = np.log(psd[i - 1:i + 2, c0])
+            den = y0 - 2 * y1 + y2
+            if den < 0:
+                fi = freqs[i] + 0.5 * (y0 - y2) / den * (freqs[1] - freqs[0])
+        p = float(stats.chi2.sf(ratio[i, c0] * dof, dof))
+        peaks.append(Peak(float(fi), chans, {WRENCH_CHANNELS[c]: float(ratio[g, c].max()) for c in range(nc)
+                                             if hit[g, c].any()}, p))
+    return peaks
+
+
+def _near_harmonic(f: float, gait_hz: float, tol_hz: float) -> bool:
+    if not np.isfinite(gait_hz) or gait_hz <= 0:
+        return False
+    k = max(1, round(f / gait_hz))
+    return abs(f - k * gait_hz) <= tol_hz
+
+
+def _scan_grid(dt_s: float, stride: int, step_hz: float, n_max: int) -> tuple[int, float]:
+    """FFT length giving bins at most ``step_hz`` apart for every run, and the sampling rate."""
+    fs = 1.0 / (dt_s * stride)
+    nfft = 1 << int(np.ceil(np.log2(max(fs / step_hz, n_max, 8))))
+    return nfft, fs
+
+
+def line_scan(runs: list[RunResidual], parts: list[np.ndarray], settings: EvidenceSettings, step_hz: float = 0.02):
+    """Periodogram of each run's remainder on a fine frequency grid (full-run resolution), summed over runs.
+
+    Each run contributes ``|sum e(t) w(t) exp(-i 2 pi f t)|^2 / sum w^2`` per channel (Hann taper
+    ``w``: a strong line's sidelobes, -31 dB, do not pose as lines of their own), so a line keeps
+    the resolution 1/T of the whole run, finer than a Welch segment. Zero-padded FFTs at every
+    third tick (far above the low-pass cutoff). Returns ``(freqs, scan (F, 6), dof)``.
+    """
+    stride = 3
+    lengths = [len(p[::stride]) for p in parts]
+    nfft, fs = _scan_grid(runs[0].dt_s, stride, step_hz, max(lengths, default=8))
+    freqs = np.fft.rfftfreq(nfft, 1 / fs)
+    band = (freqs >= settings.fmin_hz) & (freqs <= settings.fmax_hz)
+    total = np.zeros((int(band.sum()), 6))
+    scales = []
+    for _run, e in zip(runs, parts, strict=False):
+        x = e[::stride]
+        if len(x) < 8:
+            continue
+        taper = np.hanning(len(x) + 2)[1:-1]
+        spec = np.fft.rfft(x * taper[:, None], n=nfft, axis=0)[band]
+        p = np.abs(spec) ** 2 / (taper ** 2).sum()
+        total += p
+        scales.append(np.median(p, axis=0))
+    if not scales:
+        return freqs[band], total, 2.0
+    sc = np.asarray(scales)
+    dof = float(np.min(2.0 * sc.sum(axis=0) ** 2 / np.maximum((sc ** 2).sum(axis=0), 1e-300)))
+    return freqs[band], total, dof
+
+
+def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0) -> list[Peak]:
+    """Lines in the non-locked residual that are locked to nothing the rig does.
+
+    A line that sits on a gait harmonic of the runs it comes from may be leakage of the
+    stroke-locked misfit: each line must stand on its own in the runs whose harmonics miss it.
+    """
+    s = settings or EvidenceSettings()
+    runs = [r for r in runs if r.fit.sum() >= 16]
+    if len(runs) < 2:
+        return []
+    parts = [r.resid[r.fit] - r.resid[r.fit].mean(axis=0) - gait_locked(r, cutoff_hz) for r in runs]
+    freqs, scan, dof = line_scan(runs, parts, s)
+    found = find_peaks(freqs, scan, spectral_floor(freqs, scan, s.floor_window_hz), dof, s)
+    out = []
+    for p in found:
+        off = [i for i, r in enumerate(runs) if not _near_harmonic(p.frequency_hz, r.freq, harmonic_tolerance(r))]
+        if len(off) == len(runs):
+            out.append(p)
+            continue
+        if len(off) < 2:
+            continue
+        f2, sc2, dof2 = line_scan([runs[i] for i in off], [parts[i] for i in off], s)
+        again = find_peaks(f2, sc2, spectral_floor(f2, sc2, s.floor_window_hz), dof2, s)
+        if any(abs(q.frequency_hz - p.frequency_hz) <= 0.06 for q in again):
+            out.append(p)
+    return out

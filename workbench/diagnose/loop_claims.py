@@ -1,0 +1,229 @@
+"""From the selected configuration to the claims: effect reports, their intervals, and what is left.
+
+After selection, each claimed effect gets its canonical parameters with standard errors (nonlinear
+ones through Gauss-Newton columns), its sequential share of the held-out error and its evidence
+sentence (:func:`_effect_reports`); claims whose final intervals span zero are dropped, weakest
+first, with a refit (:func:`_enforce_claims`); and the residual structure no claim explains is
+listed (:func:`_unexplained`).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from workbench.diagnose import lsq
+from workbench.diagnose.chain import Active, Configuration, Design
+from workbench.diagnose.evidence_base import Evidence
+from workbench.diagnose.loop_results import CHANNELS, EffectReport, Unexplained
+from workbench.diagnose.loop_settings import DiagnoseSettings
+from workbench.diagnose.problem import Problem
+from workbench.diagnose.selection import judge
+
+
+def _heldout_mse(runs) -> dict[str, float]:
+    e = np.concatenate([r.resid[r.fit] for r in runs if r.heldout])
+    return {c: float((e[:, i] ** 2).mean()) for i, c in enumerate(CHANNELS)}
+
+
+def _nl_stderr(problem: Problem, config: Configuration, fit: lsq.Fit, names: list[str]) -> dict[str, float]:
+    """Standard errors of nonlinear parameters: Gauss-Newton columns d(prediction)/d(param) in the sandwich fit."""
+    out: dict[str, float] = {}
+    coefs = fit.coefs()
+    for a in config.actives:
+        for p, v in a.nl.items():
+            h = max(abs(v) * 0.02, 1e-4)
+            parts = []
+            for rs, blocks in problem.sets("all"):
+                preds = []
+                for sign in (1, -1):
+                    cfg = config.with_effect(Active(a.effect, {**a.nl, p: v + sign * h}))
+                    d = problem.design(rs, cfg, coefs, names)
+                    preds.append(d.predict(coefs, _local_rows(fit, d, rs)))
+                d0 = problem.design(rs, config, coefs, names)
+                jac = (preds[0] - preds[1]) / (2 * h)
+                dj = Design(d0.base, d0.names + ["__jac__"], d0.cols + [jac], d0.support + [np.ones(6, bool)],
+                            d0.local_names, d0.local)
+                parts.append(lsq.accumulate(dj, rs, blocks, names + ["__jac__"]))
+            gr = lsq.concat(parts)
+            # the Jacobian's coefficient is the parameter's Gauss-Newton correction; its sandwich
+            # error, with the linear terms refitted beside it, is the parameter's profiled error
+            f = lsq.fit(gr, problem.weights, problem.settings.hac_lags)
+            out[f"{a.name}.{p}"] = float(np.sqrt(max(f.cov[-1, -1], 0.0)))
+    return out
+
+
+def _local_rows(fit: lsq.Fit, d: Design, rs) -> dict[str, np.ndarray] | None:
+    if not d.local_names or not fit.local:
+        return None
+    m = len(d.local_names)
+    vals = np.array([fit.local.get(int(i), np.zeros(m)) for i in rs.index])
+    return {n: vals[:, j] for j, n in enumerate(d.local_names)}
+
+
+def _local_table(fit: lsq.Fit, grams: lsq.Grams, campaign, effect: str) -> dict[str, tuple] | None:
+    """One effect's per-run columns: (values, information, flow speed) over runs, by local name (None: none)."""
+    if not grams.local_names or not fit.local:
+        return None
+    runs = sorted(fit.local)
+    out = {}
+    for j, n in enumerate(grams.local_names):
+        owner, local = n.split(".", 1)
+        if owner != effect:
+            continue
+        vals = np.array([fit.local[r][j] for r in runs])
+        info = np.array([fit.local_info[r][j] for r in runs])
+        flows = np.array([campaign.runs[r].flow_speed_mps for r in runs])
+        out[local] = (vals, info, flows)
+    return out or None
+
+
+def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dict, ev_before: Evidence,
+                    s: DiagnoseSettings) -> list[EffectReport]:
+    """Canonical parameters, intervals, sequential held-out reductions and evidence of each claimed effect."""
+    final = result.fit
+    config, names = result.config, result.names
+    nl_se = _nl_stderr(problem, config, final, names) if any(a.nl for a in config.actives) else {}
+    cov_names = list(final.names)
+    cov = {(a, b): float(final.cov[i, j]) for i, a in enumerate(cov_names) for j, b in enumerate(cov_names)}
+    cov.update({(k, k): v * v for k, v in nl_se.items()})
+    order = [st.candidate.effect.name for st in result.steps]
+    coefs = final.coefs()
+    prefix_fits: dict[frozenset, lsq.Fit] = {}
+
+    def prefix_fit(members) -> lsq.Fit:
+        key = frozenset(members)
+        if key not in prefix_fits:
+            part = Configuration([a for a in config.actives if a.name in key])
+            prefix_fits[key] = problem.fit(part, coefs, [n for n in names if n.split(".", 1)[0] in key])
+        return prefix_fits[key]
+
+    def heldout_mse(f: lsq.Fit) -> np.ndarray:
+        h = f.grams.heldout
+        return f.sse_block_c[h].sum(axis=0) / max(f.grams.n[h].sum(), 1)
+
+    # an effect that only helps once a later one is in (a collinear partner) would show a negative
+    # share in selection order: it moves one place later until every share is positive
+    for _ in range(len(order) ** 2):
+        prev_m = heldout_mse(base_fit)
+        moved = False
+        for i in range(len(order) - 1):
+            m = heldout_mse(prefix_fit(order[: i + 1]))
+            if np.mean((prev_m - m) / np.maximum(prev_m, 1e-300)) <= 0:
+                order[i], order[i + 1] = order[i + 1], order[i]
+                moved = True
+                break
+            prev_m = m
+        if not moved:
+            break
+    # sequential held-out MSE with the final nonlinear values: effect i's share of the error removed
+    prev = base_fit
+    hb = base_fit.grams.heldout
+    m0 = base_fit.sse_block_c[hb].sum(axis=0) / max(base_fit.grams.n[hb].sum(), 1)
+    reports = []
+    for i, name in enumerate(order):
+        f = prefix_fit(order[: i + 1])
+        h = f.grams.heldout
+        n_h = max(f.grams.n[h].sum(), 1)
+        mp = prev.sse_block_c[h].sum(axis=0) / n_h
+        ma = f.sse_block_c[h].sum(axis=0) / n_h
+        test, _ = judge(prev, f, f.grams, problem.settings.hac_lags)
+        by_ch = np.where(m0 > 0, (mp - ma) / np.maximum(m0, 1e-300), 0.0)
+        step_rel = np.where(mp > 0, (mp - ma) / np.maximum(mp, 1e-300), 0.0)
+        chans = [c for c, g in zip(CHANNELS, step_rel, strict=False) if g >= s.report.channel_min_gain]
+        act = next(a for a in config.actives if a.name == name)
+        eff_coefs = {k.split(".", 1)[1]: v for k, v in coefs.items() if k.split(".", 1)[0] == name}
+        eff_cov = {(a.split(".", 1)[1], b.split(".", 1)[1]): v for (a, b), v in cov.items()
+                   if a.split(".", 1)[0] == name and b.split(".", 1)[0] == name}
+        params, se = act.effect.canonical_params(eff_coefs, dict(act.nl), eff_cov,
+                                                 _local_table(final, final.grams, problem.campaign, name))
+        step = next(st for st in result.steps if st.candidate.effect.name == name)
+        best_c = CHANNELS[int(np.argmax(step_rel))]
+        reduction = float(by_ch.mean())
+        hint = act.effect.hint(ev_before, params)
+        alt = f"; {', '.join(step.alternatives)} explained nearly as much" if step.alternatives else ""
+        sentence = (f"{hint + '; ' if hint else ''}adding {name} removes {step_rel.max():.0%} of the held-out "
+                    f"{best_c} error (held-out t = {test['t']:.1f} over {test['n_blocks']} blocks){alt}.")
+        notes = list(act.effect.notes(eff_coefs))
+        amb = [n for n in step.ambiguous_with if n != name]
+        if amb:
+            notes.append(f"the held-out data cannot tell {name} from {', '.join(amb)} (the winner's held-out "
+                         "gain over each is not significant): the attribution is ambiguous")
+        reports.append(EffectReport(name, chans, params, se, sentence, reduction,
+                                    {c: float(v) for c, v in zip(CHANNELS, by_ch, strict=False)}, test,
+                                    step.alternatives, notes, amb))
+        prev = f
+    return reports
+
+
+def _claim_faults(rep: EffectReport, effect, s: DiagnoseSettings) -> str | None:
+    """Why a claimed effect may not stand once its final intervals are known (None when it may)."""
+    from workbench.diagnose.selection import magnitude_intervals
+
+    spans = magnitude_intervals(rep.params, rep.stderr, s.selection.interval_z, effect.location_params)
+    if spans and all(spans.values()):
+        return f"every magnitude parameter's 95 % interval spans zero ({', '.join(spans)})"
+    return effect.refusal(rep.params, s.selection)
+
+
+def _enforce_claims(problem: Problem, result, base_fit: lsq.Fit, mse_before: dict, ev_before: Evidence,
+                    s: DiagnoseSettings, say: Callable[[str], None]):
+    """No claim without evidence: drop claimed effects whose final intervals span zero (weakest first).
+
+    Selection already refuses linear effects whose interval spans zero; searched parameters
+    (a lag's time constant, a mode's damping after the final joint refinement) get their
+    profiled errors only here. Each drop refits the remaining effects and recomputes every report.
+    """
+    while True:
+        effects = _effect_reports(problem, result, base_fit, mse_before, ev_before, s)
+        claimed = {a.name: a.effect for a in result.config.actives}
+        faults = {e.name: _claim_faults(e, claimed[e.name], s) for e in effects}
+        faults = {k: v for k, v in faults.items() if v}
+        if not faults:
+            return result, effects
+        worst = min((e for e in effects if e.name in faults), key=lambda e: e.heldout_mse_reduction)
+        say(f"dropped {worst.name}: {faults[worst.name]}")
+        config = result.config.without(worst.name)
+        names = [n for n in result.names if n.split(".", 1)[0] != worst.name]
+        fit = problem.fit(config, result.fit.coefs(), names)
+        steps = [st for st in result.steps if st.candidate.effect.name != worst.name]
+        table = list(result.last_table) + [{"effect": worst.name, "label": worst.name, "t": worst.test.get("t", 0.0),
+                                            "p": worst.test.get("p", 1.0), "llr": worst.test.get("llr", 0.0),
+                                            "max_gain": max(worst.heldout_mse_reduction_by_channel.values(),
+                                                            default=0.0), "ok": False,
+                                            "note": f"dropped after the final fit: {faults[worst.name]}"}]
+        result = type(result)(config, names, fit, steps, table)
+
+
+def _unexplained(ev: Evidence, effects: list[EffectReport], claimed: dict, s: DiagnoseSettings) -> list[Unexplained]:
+    """Residual structure left after the claimed effects: lines, stroke-locked misfit, trends."""
+    out: list[Unexplained] = []
+    lines = [f for e in effects for f in claimed[e.name].explained_frequencies(e.params)]
+    for p in ev.peaks:
+        if any(abs(p.frequency_hz - f) < 0.1 for f in lines):
+            continue
+        best = max(p.ratio, key=p.ratio.get)
+        out.append(Unexplained("narrowband", sorted(p.channels, key=CHANNELS.index),
+                               f"a line at {p.frequency_hz:.2f} Hz stands {p.ratio[best]:.0f}x above the residual "
+                               f"floor in {best}, in runs of every gait frequency (locked to nothing the rig does), "
+                               f"and no library effect removes it.", p.frequency_hz))
+    r = s.report
+    # the share of the residual that repeats every stroke beyond what noise puts at the harmonics
+    excess = {c: ev.locked_share[c] * max(0.0, 1 - 1 / max(ev.locked_ratio[c], 1e-9)) for c in CHANNELS}
+    locked = [c for c in CHANNELS if ev.locked_p[c] < s.evidence.locked_alpha
+              and ev.locked_ratio[c] >= s.evidence.locked_ratio and excess[c] >= r.locked_min_share]
+    if locked:
+        worst = max(locked, key=lambda c: ev.locked_share[c])
+        out.append(Unexplained("gait_locked", locked,
+                               f"{ev.locked_share[worst]:.0%} of the {worst} residual repeats every stroke "
+                               f"({ev.locked_ratio[worst]:.1f}x the power noise would put at the gait harmonics): "
+                               "a misfit of the force physics no library effect removes."))
+    trend = [c for c in CHANNELS if ev.trend[c]["p"] < s.evidence.trend_alpha
+             and ev.trend[c]["share"] >= s.evidence.trend_min_share]
+    if trend:
+        worst = max(trend, key=lambda c: abs(ev.trend[c]["t"]))
+        out.append(Unexplained("trend", trend,
+                               f"the {worst} residual drifts by {ev.trend[worst]['slope']:.3g} per second within "
+                               f"runs (t = {ev.trend[worst]['t']:.1f}) beyond what the claimed effects removed."))
+    return out
