@@ -150,7 +150,10 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
     gain_c = np.where(sb > 0, (sb - sa) / np.maximum(sb, 1e-300), 0.0)
     if correction is not None:
         # the per-run nuisance fit gains on noise too: count only what beats the off-peak fits
-        gain_c = gain_c * max(0.0, g.sum()) / max(raw[h].sum(), 1e-300)
+        # (a share in [0, 1]: with no held-out gain before the correction there is none after it; dividing by a
+        # floor instead blew a positive remainder up to ~1e300)
+        total = float(raw[h].sum())
+        gain_c = gain_c * (min(1.0, max(0.0, float(g.sum())) / total) if total > 0 else 0.0)
     if n < 3:
         return {"t": 0.0, "p": 1.0, "llr": float(g.sum()), "n_blocks": n}, gain_c
     mean = g.mean()
