@@ -49,8 +49,15 @@ def kill_after(delay_s: float, *args: str, env: dict | None = None, cwd: Path | 
 
 
 def leftovers(folder: Path) -> list[str]:
-    """Our temporaries under ``folder`` (recursively)."""
-    return sorted(str(p) for p in Path(folder).rglob(".*") if OUR_TEMP.match(p.name))
+    """Our temporaries under ``folder`` (recursively).
+
+    ``os.walk`` skips a folder that vanishes while it is read (a verb renaming its temporary folder into
+    place as we look): ``Path.rglob`` raised FileNotFoundError there, failing a kill test on a race of its own.
+    """
+    found = []
+    for root, dirs, files in os.walk(folder):
+        found += [os.path.join(root, n) for n in (*dirs, *files) if n.startswith(".") and OUR_TEMP.match(n)]
+    return sorted(found)
 
 
 def kill_moments(rng, full_s: float, n: int) -> list[float]:
