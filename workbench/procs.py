@@ -179,6 +179,35 @@ def interrupted() -> None:
     _stopping = True
 
 
+@contextmanager
+def deferred_signals() -> Iterator[None]:
+    """Hold SIGINT, SIGTERM and SIGHUP until the block ends, then act on the first that came.
+
+    For a few steps that must happen together or not at all (a trial created in the study and its
+    owner recorded): a signal arriving inside the block runs its handler (``KeyboardInterrupt``,
+    usually) only after the block, never half-way through it. Outside the main thread (where
+    Python cannot change handlers) the block runs unprotected.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    sigs = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    old = {s: signal.signal(s, lambda signum, _frame: pending.append(signum)) for s in sigs}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        if pending:
+            first = pending[0]
+            handler = old[first]
+            if callable(handler):
+                handler(first, None)
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), first)
+
+
 # ---------------------------------------------------------------------------------------------
 # process pools
 

@@ -98,8 +98,12 @@ def test_killing_tune_ends_its_workers_fails_their_trials_and_leaves_no_temp_fil
         from workbench.learn.tune_storage import fail_stale, resolve_storage
 
         storage, _ = resolve_storage(str(journal), "k")
-        failed = fail_stale(optuna.load_study(study_name="k", storage=storage))
-        assert failed, "a RUNNING trial of a dead worker was not recognised as stale"
+        study = optuna.load_study(study_name="k", storage=storage)
+        left = [(t.number, t.datetime_start, t.system_attrs) for t in study.get_trials(
+            deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))]
+        failed = fail_stale(study)
+        assert failed, (f"a RUNNING trial of a dead worker was not recognised as stale: {left}; "
+                        f"tune's output ends: {tune.text()[-1500:]}")
     assert running() == 0, "a killed command's trial is still RUNNING"
 
 

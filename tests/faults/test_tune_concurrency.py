@@ -67,6 +67,65 @@ def test_a_trial_whose_worker_was_killed_is_failed_at_once_and_queued_again(tmp_
     assert trials[1].params == trials[0].params and trials[1].system_attrs["failed_trial"] == 0
 
 
+def _signal_while_recording_the_owner(storage, monkeypatch):
+    """SIGTERM to this process just before the trial's owner is written (the worst moment to be stopped)."""
+    from workbench.learn.tune_storage import OWNER_KEY
+
+    real = type(storage).set_trial_system_attr
+    sent = []
+
+    def set_attr(self, trial_id, key, value):
+        if key == OWNER_KEY and not sent:
+            sent.append(trial_id)
+            os.kill(os.getpid(), signal.SIGTERM)  # Python runs its handler at the next bytecode
+        return real(self, trial_id, key, value)
+
+    monkeypatch.setattr(type(storage), "set_trial_system_attr", set_attr)
+    return sent
+
+
+def _raise_on_sigterm():
+    def on_term(signum, frame):
+        raise KeyboardInterrupt("SIGTERM")
+
+    return signal.signal(signal.SIGTERM, on_term)
+
+
+def test_a_worker_stopped_as_it_starts_a_trial_records_the_trials_owner_first(tmp_path, monkeypatch):
+    """The CI failure of 2026-11-25: a worker stopped between creating its trial and writing the trial's owner
+    left a RUNNING trial that no one could call stale before the grace period. The stop now waits for the owner."""
+    import optuna
+
+    from workbench.learn.tune_storage import OWNER_KEY, fail_stale
+
+    storage = _journal(tmp_path / "s.journal")
+    study = optuna.create_study(study_name="s", storage=storage)
+    old = _raise_on_sigterm()
+    try:
+        sent = _signal_while_recording_the_owner(storage, monkeypatch)
+        with pytest.raises(KeyboardInterrupt):
+            study.ask()
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    assert sent, "the signal was never sent: the owner was not recorded through set_trial_system_attr"
+    (trial,) = study.get_trials()
+    assert trial.state.name == "RUNNING"
+    owner = trial.system_attrs.get(OWNER_KEY)
+    assert owner and owner["pid"] == os.getpid() and owner["trial"] == trial.number
+    # the same for a queued (retried) trial taken up: set RUNNING and its owner written together
+    study.enqueue_trial({})
+    old = _raise_on_sigterm()
+    try:
+        sent.clear()
+        with pytest.raises(KeyboardInterrupt):
+            study.ask()
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    taken = study.get_trials()[-1]
+    assert taken.state.name == "RUNNING" and taken.system_attrs[OWNER_KEY]["trial"] == taken.number
+    assert fail_stale(study) == []  # this process lives: neither trial is stale
+
+
 def test_a_trial_silent_past_the_grace_period_is_failed(tmp_path):
     import optuna
 

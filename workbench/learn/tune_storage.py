@@ -98,16 +98,28 @@ class _LocalOwner:
 
     _owned: set
 
+    # A trial made RUNNING and its owner are recorded together: a Ctrl-C or SIGTERM arriving in
+    # between waits until the owner is written (procs.deferred_signals). Otherwise a worker stopped
+    # just then leaves a RUNNING trial with no owner, stale only after the grace period.
+
     def create_new_trial(self, study_id: int, template_trial=None) -> int:
-        trial_id = super().create_new_trial(study_id, template_trial)
-        if template_trial is None or template_trial.state == TrialState.RUNNING:
-            self._record_owner(trial_id)
+        from workbench import procs
+
+        with procs.deferred_signals():
+            trial_id = super().create_new_trial(study_id, template_trial)
+            if template_trial is None or template_trial.state == TrialState.RUNNING:
+                self._record_owner(trial_id)
         return trial_id
 
     def set_trial_state_values(self, trial_id: int, state, values=None) -> bool:
-        ok = super().set_trial_state_values(trial_id, state, values)
-        if ok and state == TrialState.RUNNING:  # a WAITING (e.g. retried) trial taken up here
-            self._record_owner(trial_id)
+        if state != TrialState.RUNNING:
+            return super().set_trial_state_values(trial_id, state, values)
+        from workbench import procs
+
+        with procs.deferred_signals():
+            ok = super().set_trial_state_values(trial_id, state, values)
+            if ok:  # a WAITING (e.g. retried) trial taken up here
+                self._record_owner(trial_id)
         return ok
 
     def _record_owner(self, trial_id: int) -> None:
