@@ -81,7 +81,7 @@ def _modules() -> dict[str, Path]:
 def test_diagnose_package_has_no_import_cycle():
     mods = _modules()
     graph = {m: sorted(_imports(p) & set(mods)) for m, p in mods.items()}
-    assert "workbench.diagnose.effects.base" in graph["workbench.diagnose.effects.rig"]
+    assert "workbench.diagnose.effects.base" in graph["workbench.diagnose.effects.servo"]
     assert not graph["workbench.diagnose.effects.base"].count("workbench.diagnose.library")
     state: dict[str, int] = {}
 
@@ -166,7 +166,7 @@ def test_an_installed_plugin_is_found_through_its_entry_point(tmp_path, monkeypa
         reg = library.registry()
         assert reg["hip_spring"] is HipSpring
         # a stale entry point of an in-tree effect (an old module path) does not hide the in-tree class
-        assert reg["servo_lag"].__module__ == "workbench.diagnose.effects.rig"
+        assert reg["servo_lag"].__module__ == "workbench.diagnose.effects.servo"
         e = library.make_effect("hip_spring")
         assert e.get_feature_names() == ["hip_spring.k_nm  [tx += k_nm sin(theta_h)]"]
         assert "hip_spring" in library.default_library().names()
@@ -249,7 +249,8 @@ def test_input_effects_act_on_an_expensive_models_output_through_their_hooks():
     plain model is.
     """
     from workbench.diagnose.chain import Active, Configuration, build_design
-    from workbench.diagnose.effects.rig import ServoLag, TunnelBlockage
+    from workbench.diagnose.effects.blockage import TunnelBlockage
+    from workbench.diagnose.effects.servo import ServoLag
     from workbench.hydro.ef import EmpiricalFormula
     from workbench.hydro.motion import JointSinusoid, LegMotion
 

@@ -6,8 +6,10 @@ import pytest
 
 from workbench.diagnose import lsq
 from workbench.diagnose.data import DataSettings, heldout_mask, prepare
+from workbench.diagnose.effects.crosstalk import LoadcellCrosstalk
 from workbench.diagnose.effects.fluid import AddedMassError, DragCoefficientError, LinkDrag
-from workbench.diagnose.effects.rig import LoadcellCrosstalk, ServoLag, lag_filter, resonance_filter
+from workbench.diagnose.effects.resonance import resonance_filter
+from workbench.diagnose.effects.servo import ServoLag, lag_filter
 from workbench.diagnose.evidence import EvidenceSettings, RunResidual, peaks
 from workbench.diagnose.flowterms import LegKinematics, first_order_lag
 from workbench.diagnose.library import EffectLibrary, default_library

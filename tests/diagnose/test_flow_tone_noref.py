@@ -76,7 +76,7 @@ def test_stroke_free_columns_keep_the_tone_and_drop_the_stroke():
 
 
 def test_options_round_trip_and_bad_values_are_refused():
-    from workbench.diagnose.effects.rig import FlowUnsteadiness
+    from workbench.diagnose.effects.flow_tone import FlowUnsteadiness
     from workbench.errors import ModelError
 
     e = FlowUnsteadiness.from_options({"sensitivity": "model", "stroke_free": False})
@@ -104,7 +104,7 @@ def _tone_context(freqs: list[float], t: np.ndarray, u: float = 0.2, offset=None
 
 
 def test_runs_on_a_gait_harmonic_carry_the_tone_apart_and_the_nulls_keep_it():
-    from workbench.diagnose.effects.rig import FlowUnsteadiness
+    from workbench.diagnose.effects.flow_tone import FlowUnsteadiness
     from workbench.diagnose.flowsens import without_stroke
 
     t = np.arange(0, 4 / 0.3, DT)
@@ -143,7 +143,7 @@ def _amplitude(cols, i, m, y):
 
 def test_stroke_free_columns_measure_the_tone_under_a_large_stroke_locked_misfit():
     """Per run, least squares on the stroke-free columns gives the planted amplitude; the plain ones do not."""
-    from workbench.diagnose.effects.rig import FlowUnsteadiness
+    from workbench.diagnose.effects.flow_tone import FlowUnsteadiness
 
     t = np.arange(0, 4 / 0.3, DT)
     freqs = [0.3, 0.45, 0.6]

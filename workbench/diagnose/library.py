@@ -64,8 +64,10 @@ def _add(table: dict, sources: dict, cls: type[Effect], source: str) -> None:
 def _in_tree() -> tuple[tuple[str, type[Effect]], ...]:
     pkg = importlib.import_module(IN_TREE_PACKAGE)
     out = []
-    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
-        mod = importlib.import_module(f"{IN_TREE_PACKAGE}.{info.name}")
+    mods = [importlib.import_module(f"{IN_TREE_PACKAGE}.{info.name}") for info in pkgutil.iter_modules(pkg.__path__)]
+    # library order: a module's LIBRARY_RANK (the leg's own physics first, then the rig from command to reading),
+    # then its name; a new module without a rank comes after the documented library
+    for mod in sorted(mods, key=lambda m: (getattr(m, "LIBRARY_RANK", 100), m.__name__)):
         out += [(f"{mod.__name__}:{c.__name__}", c) for c in getattr(mod, "EFFECTS", ())]
     return tuple(out)
 

@@ -455,6 +455,8 @@ class LinkWeightBuoyancy(_LinkQuadrature):
         return params, se
 
 
+LIBRARY_RANK = 0  # place in the library's order (workbench.diagnose.library._in_tree)
+
 EFFECTS = (AddedMassError, DragCoefficientError, LinkDrag, Lift, LegWeightBuoyancy, CirculatoryLag,
                  NormalForceLaw, WagnerLag, RotatingAddedMass, AddedMassKC, LinkInertia, LateralForce,
                  LinkWeightBuoyancy)
