@@ -39,8 +39,9 @@ demo: setup
 	$(BIN)/dvc repro
 	@echo "== done: results under datasets/ (see README 'What the demo leaves')"
 
+# the 30 slowest tests are listed at the end (where CI time goes; docs/testing.md)
 test: setup system-deps
-	$(BIN)/python -m pytest -q -ra
+	$(BIN)/python -m pytest -q -ra --durations=30
 
 # under 2 minutes on an idle 2-core machine (docs/testing.md); the slowest tests are listed at the end.
 # The -p no: flags skip pytest plugins that third-party packages install and no test uses (about 1 s of
