@@ -148,16 +148,26 @@ def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cut
     parts = [r.resid[r.fit] - r.resid[r.fit].mean(axis=0) - gait_locked(r, cutoff_hz) for r in runs]
     freqs, scan, dof = line_scan(runs, parts, s)
     found = find_peaks(freqs, scan, spectral_floor(freqs, scan, s.floor_window_hz), dof, s)
+
+    def rescan(off: list[int]) -> list[Peak]:
+        f2, sc2, dof2 = line_scan([runs[i] for i in off], [parts[i] for i in off], s)
+        return find_peaks(f2, sc2, spectral_floor(f2, sc2, s.floor_window_hz), dof2, s)
+
+    return stand_off_harmonics(found, runs, rescan)
+
+
+def stand_off_harmonics(found: list[Peak], runs: list[RunResidual], rescan, tol_hz: float = 0.06) -> list[Peak]:
+    """The peaks of ``found`` that stand in the runs whose gait harmonics miss them.
+
+    A peak that sits on no run's gait harmonic is kept; one on some runs' harmonics may be leakage
+    of the stroke-locked misfit, so it is kept only when ``rescan(off)`` (the same scan over the
+    run indices ``off`` whose harmonics miss it, at least two) finds a peak within ``tol_hz``.
+    """
     out = []
     for p in found:
         off = [i for i, r in enumerate(runs) if not _near_harmonic(p.frequency_hz, r.freq, harmonic_tolerance(r))]
         if len(off) == len(runs):
             out.append(p)
-            continue
-        if len(off) < 2:
-            continue
-        f2, sc2, dof2 = line_scan([runs[i] for i in off], [parts[i] for i in off], s)
-        again = find_peaks(f2, sc2, spectral_floor(f2, sc2, s.floor_window_hz), dof2, s)
-        if any(abs(q.frequency_hz - p.frequency_hz) <= 0.06 for q in again):
+        elif len(off) >= 2 and any(abs(q.frequency_hz - p.frequency_hz) <= tol_hz for q in rescan(off)):
             out.append(p)
     return out

@@ -12,8 +12,8 @@ import numpy as np
 
 from workbench.contract.columns import WRENCH_CHANNELS
 from workbench.diagnose.evidence_base import EvidenceSettings, Peak, RunResidual
-from workbench.diagnose.evidence_lines import _near_harmonic, _scan_grid, find_peaks, spectral_floor
-from workbench.diagnose.evidence_locked import gait_locked, harmonic_tolerance
+from workbench.diagnose.evidence_lines import _scan_grid, find_peaks, spectral_floor, stand_off_harmonics
+from workbench.diagnose.evidence_locked import gait_locked
 
 
 def tone_scan(runs: list[RunResidual], gains: list[np.ndarray], weights: np.ndarray,
@@ -69,21 +69,15 @@ def flow_tone_peaks(runs: list[RunResidual], gains: list[np.ndarray], weights: n
     if not np.any(scan > 0):
         return []
     floor = spectral_floor(freqs, scan[:, None], s.floor_window_hz)
-    found = []
-    for p in find_peaks(freqs, scan[:, None], floor, dof, s):
-        # like a plain line, a flow tone must stand in the runs whose gait harmonics miss it
-        off = [i for i, r in enumerate(runs) if not _near_harmonic(p.frequency_hz, r.freq, harmonic_tolerance(r))]
-        if len(off) == len(runs):
-            found.append(p)
-            continue
-        if len(off) < 2:
-            continue
+
+    def rescan(off: list[int]) -> list[Peak]:
         f2, sc2, dof2 = tone_scan([runs[i] for i in off], [gains[i] for i in off], weights, s, cutoff_hz)
         if not np.any(sc2 > 0):
-            continue
-        again = find_peaks(f2, sc2[:, None], spectral_floor(f2, sc2[:, None], s.floor_window_hz), dof2, s)
-        if any(abs(q.frequency_hz - p.frequency_hz) <= 0.06 for q in again):
-            found.append(p)
+            return []
+        return find_peaks(f2, sc2[:, None], spectral_floor(f2, sc2[:, None], s.floor_window_hz), dof2, s)
+
+    # like a plain line, a flow tone must stand in the runs whose gait harmonics miss it
+    found = stand_off_harmonics(find_peaks(freqs, scan[:, None], floor, dof, s), runs, rescan)
     share = np.zeros(6)
     for run, g in zip(runs, gains, strict=False):
         share += (weights * g[run.fit] ** 2).sum(axis=0)
