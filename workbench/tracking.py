@@ -40,7 +40,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
-from workbench.errors import ModelError
+from workbench.errors import ModelLoadError
 
 #: the folder beside a sqlite store that holds its artifacts
 ARTIFACTS_DIR = "mlartifacts"
@@ -546,7 +546,7 @@ def download_model(uri: str, tracking_uri_: str | None = None) -> tuple[Path, di
         mv = resolve_version(uri, tracking_uri_)
         path = mlflow.artifacts.download_artifacts(artifact_uri=mv.source)
     except Exception as exc:  # noqa: BLE001 - MLflow raises many kinds; one line for the user
-        raise ModelError(f"cannot load {uri} from {mlflow.get_tracking_uri()} ({type(exc).__name__}: "
-                         f"{str(exc).splitlines()[0][:160] if str(exc) else ''})",
-                         hint="train first (workbench train) or pass --tracking-uri") from exc
+        raise ModelLoadError(f"cannot load {uri} from {mlflow.get_tracking_uri()} ({type(exc).__name__}: "
+                             f"{str(exc).splitlines()[0][:160] if str(exc) else ''})",
+                             hint="train first (workbench train) or pass --tracking-uri") from exc
     return Path(path), {"model_uri": uri, "model_version": str(mv.version), "run_id": mv.run_id}

@@ -148,7 +148,7 @@ def test_adapter_resamples_other_tick_rates(model):
 
 
 def test_saved_folder_reloads_identically(model, tmp_path):
-    from workbench.errors import ModelError
+    from workbench.errors import ModelLoadError
     from workbench.learn.legmodel import load_model, save_model
 
     save_model(model, tmp_path)
@@ -157,7 +157,7 @@ def test_saved_folder_reloads_identically(model, tmp_path):
     assert np.array_equal(model.wrench(m), again.wrench(m))
     assert again.describe()["variant"] == "lstm" and again.seq_len == model.seq_len
     (tmp_path / "weights.pt").write_bytes(b"garbage")
-    with pytest.raises(ModelError, match="weights.pt does not load"):
+    with pytest.raises(ModelLoadError, match="weights.pt does not load"):
         load_model(tmp_path)
-    with pytest.raises(ModelError, match="not a trained leg model folder"):
+    with pytest.raises(ModelLoadError, match="not a trained leg model folder"):
         load_model(tmp_path / "nothing")

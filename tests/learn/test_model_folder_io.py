@@ -11,7 +11,7 @@ import json
 import pytest
 import yaml
 
-from workbench.errors import ModelError, ModelLoadError
+from workbench.errors import ModelLoadError
 
 
 def test_an_ensemble_folder_without_or_with_a_broken_record_is_one_line(tmp_path):
@@ -24,10 +24,10 @@ def test_an_ensemble_folder_without_or_with_a_broken_record_is_one_line(tmp_path
     with pytest.raises(ModelLoadError, match="ensemble.json is not JSON"):
         load_ensemble(tmp_path)
     (tmp_path / "ensemble.json").write_text(json.dumps({"schema": "someone-else@2"}))
-    with pytest.raises(ModelError, match="unknown ensemble schema 'someone-else@2'"):
+    with pytest.raises(ModelLoadError, match="unknown ensemble schema 'someone-else@2'"):
         load_ensemble(tmp_path)
     (tmp_path / "ensemble.json").write_text(json.dumps({"schema": SCHEMA, "members": [{"dir": "member-00"}]}))
-    with pytest.raises(ModelError, match="not a trained leg model folder"):
+    with pytest.raises(ModelLoadError, match="not a trained leg model folder"):
         load_ensemble(tmp_path)
 
 
@@ -40,7 +40,7 @@ def test_a_path_is_a_learned_model_only_when_its_model_json_says_so(tmp_path):
     (tmp_path / "model.json").write_text("[1, 2]")
     assert load_path(tmp_path / "model.json") is None
     (tmp_path / "model.json").write_text(json.dumps({"schema": "workbench/learned-leg-model@99"}))
-    with pytest.raises(ModelError, match="unknown model schema 'workbench/learned-leg-model@99'"):
+    with pytest.raises(ModelLoadError, match="unknown model schema 'workbench/learned-leg-model@99'"):
         load_path(tmp_path)
 
 
@@ -54,3 +54,23 @@ def test_the_model_folder_inside_a_downloaded_mlflow_model(tmp_path):
     (tmp_path / "MLmodel").write_text(yaml.safe_dump({"flavors": {"python_function": {}}}))
     with pytest.raises(ModelLoadError, match="without the workbench's leg_model artifact"):
         mlflow_model_folder(tmp_path)
+
+
+def test_evaluate_with_a_folder_without_model_json_is_one_line_naming_the_folder(parquet, tmp_path, capsys):
+    """The CLI's message for a --model folder that holds no trained model: one line, the folder, the fault."""
+    from workbench.cli import main
+    from workbench.learn.split import split_parameter_sets
+    from workbench.learn.windows import read_table
+
+    _, measured = parquet
+    split = tmp_path / "split.json"
+    split.write_text(json.dumps(split_parameter_sets(read_table([measured])).to_dict()))
+    empty = tmp_path / "not-a-model"
+    empty.mkdir()
+    (empty / "notes.txt").write_text("a folder, but no model.json\n")
+    out = tmp_path / "metrics.json"
+    rc = main(["evaluate", "--data", str(measured), "--split", str(split), "--out", str(out),
+               "--model", str(empty), "--no-mlflow"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and not out.exists()
+    assert err == f"error: {empty}: no model.json: not a trained leg model folder", err

@@ -20,7 +20,7 @@ import numpy as np
 
 from workbench.diagnose.chain import Active, Configuration, Lowpass, build_design
 from workbench.diagnose.library import effect_options, make_effect
-from workbench.errors import ModelError
+from workbench.errors import ModelLoadError
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import LegMotion
 
@@ -115,14 +115,14 @@ def load_augmented(path: str | Path, base: LegForceModel | None = None) -> Augme
     if p.is_dir():
         p = p / "augmented_model.json"
     if not p.is_file():
-        raise ModelError("no saved augmented model here", path=p,
-                         hint="run `workbench diagnose ... --out DIR` and pass DIR/augmented_model.json")
+        raise ModelLoadError("no saved augmented model here", path=p,
+                             hint="run `workbench diagnose ... --out DIR` and pass DIR/augmented_model.json")
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
-        raise ModelError(f"cannot read augmented model ({exc})", path=p) from None
+        raise ModelLoadError(f"cannot read augmented model ({exc})", path=p) from None
     if doc.get("schema") != SCHEMA:
-        raise ModelError(f"not an augmented model (schema {doc.get('schema')!r}, expected {SCHEMA!r})", path=p)
+        raise ModelLoadError(f"not an augmented model (schema {doc.get('schema')!r}, expected {SCHEMA!r})", path=p)
     actives, coefs = [], {}
     for e in doc.get("effects", []):
         actives.append(Active(make_effect(e["name"], e.get("options")), dict(e.get("nonlinear", {}))))

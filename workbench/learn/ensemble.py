@@ -37,7 +37,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from workbench.contract.columns import WRENCH_CHANNELS
-from workbench.errors import ModelError
+from workbench.errors import ModelLoadError
 
 SCHEMA = "workbench/leg-model-ensemble@1"
 #: two-sided 90 % quantile of the standard normal
@@ -91,15 +91,15 @@ def load_ensemble(folder: str | Path) -> Ensemble:
                           missing="no ensemble.json: not an ensemble folder (workbench train-ensemble writes one)")
     if not isinstance(rec, dict) or rec.get("schema") != SCHEMA:
         schema = rec.get("schema") if isinstance(rec, dict) else None
-        raise ModelError(f"unknown ensemble schema {schema!r}", path=path, hint=f"expected {SCHEMA}")
+        raise ModelLoadError(f"unknown ensemble schema {schema!r}", path=path, hint=f"expected {SCHEMA}")
     try:
         members = [load_model(folder / m["dir"]) for m in rec["members"]]
         noise = np.array([rec["noise_var"][c] for c in WRENCH_CHANNELS], float)
         scale = np.array([rec["scale"][c] for c in WRENCH_CHANNELS], float)
     except (KeyError, TypeError) as exc:
-        raise ModelError(f"ensemble.json is incomplete ({type(exc).__name__}: {exc})", path=path) from None
+        raise ModelLoadError(f"ensemble.json is incomplete ({type(exc).__name__}: {exc})", path=path) from None
     if len(members) < 2:
-        raise ModelError("an ensemble needs at least two members", path=path)
+        raise ModelLoadError("an ensemble needs at least two members", path=path)
     return Ensemble(members, noise, scale, rec)
 
 

@@ -34,7 +34,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-from workbench.errors import ModelError, ModelLoadError
+from workbench.errors import ModelLoadError
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import LegMotion
 from workbench.learn.config import FEATURES, ModelCfg
@@ -220,22 +220,24 @@ def load_model(folder: str | Path, **info) -> LearnedLegModel:
     folder = Path(folder)
     spec_path = folder / "model.json"
     if not spec_path.is_file():
-        raise ModelError("no model.json: not a trained leg model folder", path=folder)
+        raise ModelLoadError("no model.json: not a trained leg model folder", path=folder)
     try:
         spec = json.loads(spec_path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
-        raise ModelError(f"model.json is not JSON ({exc.msg})", path=spec_path) from exc
+        raise ModelLoadError(f"model.json is not JSON ({exc.msg})", path=spec_path) from exc
     if spec.get("schema") != MODEL_SCHEMA:
-        raise ModelError(f"unknown model schema {spec.get('schema')!r}", path=spec_path, hint=f"expected {MODEL_SCHEMA}")
+        raise ModelLoadError(f"unknown model schema {spec.get('schema')!r}", path=spec_path,
+                             hint=f"expected {MODEL_SCHEMA}")
     try:
         cfg = ModelCfg(**spec["model"])
         net = build_net(cfg, int(spec["seq_len"]))
         dt_s, norm = float(spec["dt_s"]), Normalisation.from_dict(spec["normalisation"])
     except (KeyError, TypeError, ValueError) as exc:  # a torn or hand-edited model.json: one line
-        raise ModelError(f"model.json is incomplete or malformed ({type(exc).__name__}: {exc})", path=spec_path) from None
+        raise ModelLoadError(f"model.json is incomplete or malformed ({type(exc).__name__}: {exc})",
+                             path=spec_path) from None
     try:
         net.load_state_dict(torch.load(folder / "weights.pt", map_location="cpu", weights_only=True))
     except Exception as exc:  # noqa: BLE001 - missing, torn, foreign or mismatched weights: one line for all
-        raise ModelError(f"weights.pt does not load ({str(exc).splitlines()[0]})", path=folder) from exc
+        raise ModelLoadError(f"weights.pt does not load ({str(exc).splitlines()[0]})", path=folder) from exc
     return LearnedLegModel(net, model=cfg, seq_len=spec["seq_len"], dt_s=dt_s, norm=norm,
                            info={**spec.get("info", {}), **info}, name=spec.get("name", "lstm"))

@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from workbench.errors import ModelError
+from workbench.errors import ModelError, ModelLoadError
 
 DEFAULT_NAME = "fed-lstm"
 DEFAULT_ALIAS = "champion"
@@ -54,7 +54,7 @@ def load_path(path: str | Path, **kwargs):
 
     The path-loader hook of :func:`workbench.hydro.legmodel.load_leg_model`: other kinds of saved
     models (e.g. augmented models) answer for their own paths. A folder that says it is a learned
-    model but does not load (torn weights, a foreign schema) fails with a one-line ModelError.
+    model but does not load (torn weights, a foreign schema) fails with a one-line ModelLoadError.
     The folder is read through :mod:`workbench.learn.legmodel` (learn's edge for saved models).
     """
     from workbench.learn.legmodel import MODEL_SCHEMA, read_model_head
@@ -66,8 +66,8 @@ def load_path(path: str | Path, **kwargs):
     if not str(head.get("schema", "")).startswith("workbench/learned-leg-model@"):
         return None
     if head.get("schema") != MODEL_SCHEMA:
-        raise ModelError(f"unknown model schema {head.get('schema')!r}", path=folder / "model.json",
-                         hint=f"expected {MODEL_SCHEMA}")
+        raise ModelLoadError(f"unknown model schema {head.get('schema')!r}", path=folder / "model.json",
+                             hint=f"expected {MODEL_SCHEMA}")
     return load_folder(folder, model_path=str(path), **kwargs)
 
 
