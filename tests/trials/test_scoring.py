@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from workbench.errors import DataError
+from workbench.errors import ConvergenceError, DataError
 from workbench.trials.scoring import (
     CAP_S,
+    MAX_RADIUS_PER_EXTENT,
     UndecidedError,
     first_crossing,
     fit_circle,
@@ -127,6 +128,43 @@ def test_turn_needs_heading():
         score_turn(t, t, t, np.full_like(t, np.nan))
     with pytest.raises(DataError):
         fit_circle(np.array([0.0, 1.0]), np.array([0.0, 1.0]))
+
+
+def test_circle_fit_without_a_circle_is_an_error_not_a_radius():
+    # points on a line: the geometric fit runs off to a huge radius and stops there "successfully";
+    # that is no circle, so it is a ConvergenceError naming what failed, never a radius
+    s = np.linspace(0.0, 2.0, 40)
+    for x, y in ((s, np.zeros_like(s)), (0.3 + 0.6 * s, -0.1 + 0.8 * s)):
+        with pytest.raises(ConvergenceError, match="circle fit to 40 positions found no circle") as exc:
+            fit_circle(x, y)
+        assert "lie on a line" in exc.value.format() and "\n" not in exc.value.format()
+    # a robot that sits still (or rocks between two spots) gives too few distinct positions
+    with pytest.raises(DataError, match="only 1 distinct positions among 30"):
+        fit_circle(np.full(30, 0.7), np.full(30, 1.2))
+    with pytest.raises(DataError, match="only 2 distinct positions among 6"):
+        fit_circle(np.array([0.0, 0.1] * 3), np.array([0.0, 0.2] * 3))
+    # a gentle arc well inside the bound still fits: radius 50 m over a 2 m path (bow 1 cm)
+    a = np.linspace(0.0, 2.0 / 50.0, 60)
+    cx, cy, r = fit_circle(50.0 * np.cos(a), 50.0 * np.sin(a))
+    assert r == pytest.approx(50.0, rel=1e-6) and 50.0 < MAX_RADIUS_PER_EXTENT * 1.0
+
+
+def test_a_turn_trial_that_swims_straight_fails_as_that_trial():
+    # judged as a turn, a straight swim never reaches 360 degrees and its path has no circle
+    t = np.arange(0.0, 61.0, 0.1)
+    with pytest.raises(ConvergenceError, match="found no circle") as exc:
+        score_turn(t, np.zeros_like(t), 0.05 * t, np.zeros_like(t))
+    # scoring a trial names the trial and its video and keeps the class: score_folder records it as that
+    # trial's failure (like every WorkbenchError of a trial, tests/trials/test_trials_bad_input.py)
+    from pathlib import Path
+
+    from workbench.contract.trials import CameraSpec, TrialSpec
+    from workbench.trials.trial import _fail
+
+    spec = TrialSpec("ef-turn-1", "turn", "EF", 1, Path("videos/ef-turn-1.mp4"), 0.5, CameraSpec((), ()))
+    err = _fail(spec, exc.value)
+    assert type(err) is ConvergenceError
+    assert err.format().startswith("videos/ef-turn-1.mp4, trial ef-turn-1: the circle fit to ")
 
 
 def test_dispatch_and_unknown_task():

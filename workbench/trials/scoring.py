@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from workbench.errors import DataError
+from workbench.errors import ConvergenceError, DataError
 
 #: Contract constants (section 2); not tuning knobs.
 CAP_S = 60.0
@@ -118,11 +118,20 @@ def score_straight(t: np.ndarray, x: np.ndarray, y: np.ndarray, *, observed_unti
                       stations=tuple(stations), notes=tuple(notes))
 
 
+#: a fitted radius this many times the points' extent is no circle: the points lie on a line (the
+#: arc's bow over the path, L^2 / 8 r, would be under a thousandth of its length L)
+MAX_RADIUS_PER_EXTENT = 1e3
+
+
 def fit_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     """Circle ``(cx, cy, r)`` minimising the geometric distances of the points to it.
 
     Kasa's algebraic fit (linear least squares on x^2 + y^2 + D x + E y + F = 0) starts a
     Levenberg-Marquardt fit of the geometric residuals ``|p - c| - r`` (scipy least_squares).
+    Fewer than 3 distinct positions is a :class:`DataError`; a fit that did not converge, or that
+    ends without a circle (a radius that is not finite and positive, or over
+    ``MAX_RADIUS_PER_EXTENT`` times the points' extent: points on a line) is a
+    :class:`ConvergenceError`. What it produced is no radius.
     """
     from scipy.optimize import least_squares
 
@@ -130,6 +139,9 @@ def fit_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     x, y = np.asarray(x, float)[ok], np.asarray(y, float)[ok]
     if x.size < 3:
         raise DataError(f"only {x.size} valid positions; a circle needs at least 3")
+    distinct = np.unique(np.column_stack([x, y]), axis=0).shape[0]
+    if distinct < 3:
+        raise DataError(f"only {distinct} distinct positions among {x.size}; a circle needs at least 3")
     # centre the data for conditioning
     mx, my = x.mean(), y.mean()
     u, v = x - mx, y - my
@@ -142,7 +154,13 @@ def fit_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
         return np.hypot(u - p[0], v - p[1]) - p[2]
 
     res = least_squares(resid, np.array([c0[0], c0[1], r0]), method="lm", x_scale="jac")
+    if not res.success:
+        raise ConvergenceError(f"the circle fit to {x.size} positions did not converge ({res.message})")
     cx, cy, r = res.x
+    extent = float(np.hypot(u, v).max())
+    if not (np.all(np.isfinite(res.x)) and 0 < abs(r) <= MAX_RADIUS_PER_EXTENT * extent):
+        raise ConvergenceError(f"the circle fit to {x.size} positions found no circle (radius {abs(r):.3g} m for "
+                               f"points {extent:.3g} m from their centroid): they lie on a line")
     return float(cx + mx), float(cy + my), float(abs(r))
 
 
