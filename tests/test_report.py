@@ -2,6 +2,7 @@ import json
 
 from workbench import report
 from workbench.cli import main
+from workbench.report.pool import _improvement_table
 
 
 def _write(path, obj):
@@ -206,6 +207,6 @@ def test_improvement_table_survives_missing_improvements():
     summary = {"comparison": {"baseline": "EF", "models": {"FED-LSTM": {"straight": {
         "best": {"time_s": {"EF": 0.0, "FED-LSTM": 12.0, "improvement": None}},
         "mean": {"mae_x_m": {"EF": 0.4, "FED-LSTM": 0.2, "improvement": 0.5}}}}}}}
-    caption, header, rows = report._improvement_table(summary)
+    caption, header, rows = _improvement_table(summary)
     assert ["straight", "FED-LSTM", "best", "T (s)", "0.000", "12.000", "-"] in rows
     assert rows[-1][-1] == "+50.0 %"

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from workbench.report import _pool_stats, _prediction_reasons, _task_verdict
+from workbench.report.verdict import _pool_stats, _prediction_reasons, _task_verdict
 
 
 def model(label, achieved, predicted, completed=1, n=2, mismatch=None):
