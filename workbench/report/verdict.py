@@ -9,7 +9,7 @@ from workbench.report.read import load_json, read_scores
 
 #: the trials' protocol (data contract section 2): what a gait file's task must match to be comparable
 TRIAL_PROTOCOL = {"straight": {"cap_s": 60.0, "finish_distance_m": 2.0}, "turn": {"cap_s": 60.0, "target_yaw_deg": 360.0}}
-#: pool labels of the pipeline's model keys (the virtual pool's truth.json says so too)
+
 
 def _protocol_mismatch(task: str, settings: dict) -> str | None:
     """How a gait file's optimised task differs from the trials' protocol, or None when it is the same."""
