@@ -62,7 +62,12 @@ def leg_wrench_provider(leg_model: LegForceModel, motion: LegMotion) -> Callable
 
 
 class FlowMap:
-    """The pieces the fixed-point schemes share: leg wrenches, the body integration, the new flow."""
+    """The fixed-point map F the schemes share: leg wrenches, the body integration, the new flow.
+
+    ``window_wrench`` and ``wrench`` predict the legs' wrenches for a flow history, ``swim``
+    integrates the body under them and returns the state and the legs' new flow; ``calls`` counts
+    the leg-model calls (a simulation's ``iterations``).
+    """
 
     def __init__(self, gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, t: np.ndarray, dt_s: float):
         self.b, self.n = len(gaits), t.size
