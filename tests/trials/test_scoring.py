@@ -149,20 +149,22 @@ def test_circle_fit_without_a_circle_is_an_error_not_a_radius():
     assert r == pytest.approx(50.0, rel=1e-6) and 50.0 < MAX_RADIUS_PER_EXTENT * 1.0
 
 
-def test_a_turn_trial_that_swims_straight_fails_as_that_trial():
-    # judged as a turn, a straight swim never reaches 360 degrees and its path has no circle
+def test_a_turn_trial_that_swims_straight_scores_60_s_and_no_radius():
+    # judged as a turn, a straight swim never reaches 360 degrees and its path has no circle: its time (the
+    # 60 s cap, not completed) is a score, its radius is none (an empty cell, as for straight runs), with a note
     t = np.arange(0.0, 61.0, 0.1)
-    with pytest.raises(ConvergenceError, match="found no circle") as exc:
-        score_turn(t, np.zeros_like(t), 0.05 * t, np.zeros_like(t))
-    # scoring a trial names the trial and its video and keeps the class: score_folder records it as that
-    # trial's failure (like every WorkbenchError of a trial, tests/trials/test_trials_bad_input.py)
+    sc = score_turn(t, np.zeros_like(t), 0.05 * t, np.zeros_like(t))
+    assert sc.time_s == CAP_S and not sc.completed
+    assert sc.radius_m is None and sc.circle_center is None
+    assert any("no radius" in n and "lie on a line" in n for n in sc.notes)
+    # a fit that fails otherwise still fails the trial: the trial and its video are named, the class kept
     from pathlib import Path
 
     from workbench.contract.trials import CameraSpec, TrialSpec
     from workbench.trials.trial import _fail
 
     spec = TrialSpec("ef-turn-1", "turn", "EF", 1, Path("videos/ef-turn-1.mp4"), 0.5, CameraSpec((), ()))
-    err = _fail(spec, exc.value)
+    err = _fail(spec, ConvergenceError("the circle fit to 12 positions did not converge (max iterations)"))
     assert type(err) is ConvergenceError
     assert err.format().startswith("videos/ef-turn-1.mp4, trial ef-turn-1: the circle fit to ")
 

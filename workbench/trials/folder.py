@@ -112,7 +112,8 @@ def _collect(outcomes, results, failures, bar) -> None:
         if res is not None:
             results[tid] = res
             sc = res.score
-            extra = f"mae {sc.mae_x_m:.3f} m" if sc.mae_x_m is not None else f"r {sc.radius_m:.3f} m"
+            extra = (f"mae {sc.mae_x_m:.3f} m" if sc.mae_x_m is not None
+                     else f"r {sc.radius_m:.3f} m" if sc.radius_m is not None else "no circle (swam straight)")
             bar.advance(1, f"{tid}: {sc.time_s:.1f} s, {extra}")
         else:
             failures[tid] = err

@@ -76,6 +76,8 @@ def plot_trial(result, path: str | Path) -> Path:
         for k in range(int(round(STRAIGHT_DISTANCE_M / STATION_STEP_M)) + 1):
             ax.axhline(k * STATION_STEP_M, color="0.85", lw=0.6, zorder=0)
         ax.set_title(f"straight: time {sc.time_s:.1f} s, MAE(X) {sc.mae_x_m:.3f} m")
+    elif sc.circle_center is None:
+        ax.set_title(f"turn: time {sc.time_s:.1f} s, no circle (the path is straight)")
     else:
         cx, cy = sc.circle_center
         a = np.linspace(0, 2 * np.pi, 200)

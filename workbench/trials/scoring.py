@@ -123,6 +123,10 @@ def score_straight(t: np.ndarray, x: np.ndarray, y: np.ndarray, *, observed_unti
 MAX_RADIUS_PER_EXTENT = 1e3
 
 
+class NoCircleError(ConvergenceError):
+    """The fit converged to no circle: the positions lie on a line (a turn trial that swam straight)."""
+
+
 def fit_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     """Circle ``(cx, cy, r)`` minimising the geometric distances of the points to it.
 
@@ -159,7 +163,7 @@ def fit_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     cx, cy, r = res.x
     extent = float(np.hypot(u, v).max())
     if not (np.all(np.isfinite(res.x)) and 0 < abs(r) <= MAX_RADIUS_PER_EXTENT * extent):
-        raise ConvergenceError(f"the circle fit to {x.size} positions found no circle (radius {abs(r):.3g} m for "
+        raise NoCircleError(f"the circle fit to {x.size} positions found no circle (radius {abs(r):.3g} m for "
                                f"points {extent:.3g} m from their centroid): they lie on a line")
     return float(cx + mx), float(cy + my), float(abs(r))
 
@@ -188,7 +192,13 @@ def score_turn(t: np.ndarray, x: np.ndarray, y: np.ndarray, heading_rad: np.ndar
     sel = t <= time_s + 1e-9
     # include the interpolated end point so the fit covers exactly [0, time_s]
     xe, ye = _interp_at(t, x, time_s), _interp_at(t, y, time_s)
-    cx, cy, r = fit_circle(np.append(x[sel], xe), np.append(y[sel], ye))
+    try:
+        cx, cy, r = fit_circle(np.append(x[sel], xe), np.append(y[sel], ye))
+    except NoCircleError as exc:
+        # a turn trial that swam straight: its time (60 s, not completed) is a score; its radius is none
+        notes.append(f"no radius: {exc}")
+        return TrialScore(task="turn", time_s=float(time_s), completed=completed, radius_m=None,
+                          circle_center=None, notes=tuple(notes))
     if r > 1.0:
         notes.append(f"the path hardly curves (fitted radius {r:.2f} m): the radius is ill-conditioned")
     return TrialScore(task="turn", time_s=float(time_s), completed=completed, radius_m=r,

@@ -275,6 +275,8 @@ def _finish_overlay(writer, spec: TrialSpec, score: TrialScore, frame: TrialFram
             yk = k * STATION_STEP_M
             extra.append(apply_homography(h_inv, frame.to_tank(np.array([[-0.3, yk], [0.3, yk]]))))
         lines.append(f"mae_x_m = {score.mae_x_m:.3f} m over {len(score.stations)} stations")
+    elif score.circle_center is None:
+        lines.append("radius_m: none (the path is straight)")
     else:
         cx, cy = score.circle_center
         a = np.linspace(0, 2 * np.pi, 73)
