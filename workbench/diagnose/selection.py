@@ -135,8 +135,16 @@ def block_llr(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams) -> np.ndarray:
 
 
 def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correction: np.ndarray | None = None):
-    """Held-out test of ``after`` against ``before``: t, p, llr and per-channel relative MSE reduction."""
+    """Held-out test of ``after`` against ``before``: t, p, llr and per-channel relative MSE reduction.
+
+    ``correction``: per block, what the same per-run fit gains at off-peak variants, ``(k, nb)`` (or
+    their mean, ``(nb,)``). The gain beyond their mean is tested; with ``k >= 3`` variants against
+    their spread (:func:`_null_spread_test`), otherwise by the blocks' own scatter.
+    """
     raw = block_llr(before, after, gr).sum(axis=1)
+    nulls = None
+    if correction is not None and np.ndim(correction) == 2:
+        nulls, correction = np.asarray(correction), np.mean(correction, axis=0)
     llr = raw - correction if correction is not None else raw
     # blocks the candidate leaves untouched (a flow term at zero flow) carry no evidence either way
     touched = np.abs(raw) > 1e-9 * max(np.abs(raw).max(), 1e-300)
@@ -156,6 +164,8 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
         gain_c = gain_c * (min(1.0, max(0.0, float(g.sum())) / total) if total > 0 else 0.0)
     if n < 3:
         return {"t": 0.0, "p": 1.0, "llr": float(g.sum()), "n_blocks": n}, gain_c
+    if nulls is not None and len(nulls) >= 3:
+        return _null_spread_test(raw[h], nulls[:, h], gr.run[h]), gain_c
     mean = g.mean()
     d = g - mean
     run, order = gr.run[h], gr.order[h]
@@ -168,6 +178,36 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
     se = np.sqrt(max(var, 1e-300) / n / max(n - 1, 1))
     t = float(mean / se)
     return {"t": t, "p": float(stats.t.sf(t, df=max(n - 1, 1))), "llr": float(g.sum()), "n_blocks": n}, gain_c
+
+
+def _null_spread_test(raw: np.ndarray, nulls: np.ndarray, run: np.ndarray) -> dict:
+    """A per-run fit's gain beyond its off-peak variants', against their spread, clustered by run.
+
+    Where nothing is there, the fit at the proposed value is one more draw of what the variants
+    gain, so per run ``D = sum(raw - mean(nulls))`` has variance ``(1 + 1/k) var_k(sum nulls)``.
+    Gains that differ from run to run (a tone carried by ``U dF/dU`` is 16 times stronger at twice
+    the flow speed) then count as evidence, not as scatter; runs where the variants all gain the
+    same as the fit (they cannot tell the value) carry none. t with ``runs x (k - 1)`` degrees of freedom.
+    """
+    k = len(nulls)
+    num = var = 0.0
+    used = 0
+    for r in np.unique(run):
+        m = run == r
+        per = nulls[:, m].sum(axis=1)
+        s2 = float(np.var(per, ddof=1))
+        d = float(raw[m].sum() - per.mean())
+        scale = 1e-9 * max(float(np.abs(raw[m]).sum() + np.abs(per).sum()), 1e-300)
+        if s2 <= scale ** 2 and abs(d) <= scale:
+            continue
+        num += d
+        var += (1 + 1 / k) * s2
+        used += 1
+    if not used or var <= 0:
+        return {"t": 0.0, "p": 1.0, "llr": num, "n_blocks": int(len(raw))}
+    t = num / np.sqrt(var)
+    df = used * (k - 1)
+    return {"t": float(t), "p": float(stats.t.sf(t, df=df)), "llr": float(num), "n_blocks": int(len(raw))}
 
 
 @dataclass
@@ -271,7 +311,7 @@ class StepwiseSelection:
         if objective(out) > objective(best):
             out = best
         profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values())}
-        return dict(zip(pnames, out, strict=False)), profile
+        return effect.searched(dict(zip(pnames, out, strict=False)), problem, config, coefs, names), profile
 
     # ------------------------------------------------------------ candidates
     def _linear_candidates(self, problem, config, coefs, names, effects) -> list[Candidate]:
@@ -323,15 +363,18 @@ class StepwiseSelection:
         return Candidate(effect, act, cfg, nm, f, profile=profile, surrogate=sur)
 
     def _null_correction(self, problem, cand: Candidate, coefs, current: lsq.Fit) -> np.ndarray | None:
-        variants = cand.effect.null_variants(cand.active.nl)
-        if not variants:
-            return None
         gains = []
-        for nl in variants:
-            cfg = cand.config.with_effect(Active(cand.effect, nl))
-            f = problem.fit(cfg, coefs, cand.names)
-            gains.append(block_llr(current, f, f.grams).sum(axis=1))
-        return np.mean(gains, axis=0)
+        for e in cand.effects:
+            # a pair's member with a null (a drift's per-run nuisance) is nulled alone, its partner left out
+            others = {x.name for x in cand.effects if x is not e}
+            cfg = cand.config
+            for n in others:
+                cfg = cfg.without(n)
+            names = [n for n in cand.names if n.split(".", 1)[0] not in others]
+            for nl in e.null_variants(cand.active.nl if e is cand.effect else {}):
+                f = problem.fit(cfg.with_effect(Active(e, nl)), coefs, names)
+                gains.append(block_llr(current, f, f.grams).sum(axis=1))
+        return np.array(gains) if gains else None
 
     # ------------------------------------------------------------------ select
     def select(self, problem, library: EffectLibrary, peaks_of=None, plausible=None, progress=None) -> SelectionResult:
