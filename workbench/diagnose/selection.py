@@ -311,7 +311,7 @@ class StepwiseSelection:
         if objective(out) > objective(best):
             out = best
         profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values())}
-        return effect.searched(dict(zip(pnames, out, strict=False)), problem, config, coefs, names), profile
+        return dict(zip(pnames, out, strict=False)), profile
 
     # ------------------------------------------------------------ candidates
     def _linear_candidates(self, problem, config, coefs, names, effects) -> list[Candidate]:
@@ -363,18 +363,15 @@ class StepwiseSelection:
         return Candidate(effect, act, cfg, nm, f, profile=profile, surrogate=sur)
 
     def _null_correction(self, problem, cand: Candidate, coefs, current: lsq.Fit) -> np.ndarray | None:
+        variants = cand.effect.null_variants(cand.active.nl)
+        if not variants:
+            return None
         gains = []
-        for e in cand.effects:
-            # a pair's member with a null (a drift's per-run nuisance) is nulled alone, its partner left out
-            others = {x.name for x in cand.effects if x is not e}
-            cfg = cand.config
-            for n in others:
-                cfg = cfg.without(n)
-            names = [n for n in cand.names if n.split(".", 1)[0] not in others]
-            for nl in e.null_variants(cand.active.nl if e is cand.effect else {}):
-                f = problem.fit(cfg.with_effect(Active(e, nl)), coefs, names)
-                gains.append(block_llr(current, f, f.grams).sum(axis=1))
-        return np.array(gains) if gains else None
+        for nl in variants:
+            cfg = cand.config.with_effect(Active(cand.effect, nl))
+            f = problem.fit(cfg, coefs, cand.names)
+            gains.append(block_llr(current, f, f.grams).sum(axis=1))
+        return np.mean(gains, axis=0)
 
     # ------------------------------------------------------------------ select
     def select(self, problem, library: EffectLibrary, peaks_of=None, plausible=None, progress=None) -> SelectionResult:
