@@ -371,7 +371,7 @@ class StepwiseSelection:
             cfg = cand.config.with_effect(Active(cand.effect, nl))
             f = problem.fit(cfg, coefs, cand.names)
             gains.append(block_llr(current, f, f.grams).sum(axis=1))
-        return np.mean(gains, axis=0)
+        return np.array(gains)
 
     # ------------------------------------------------------------------ select
     def select(self, problem, library: EffectLibrary, peaks_of=None, plausible=None, progress=None) -> SelectionResult:
