@@ -14,6 +14,7 @@ terms (crosstalk from the predicted true wrench, drift).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -93,6 +94,9 @@ class Design:
     support: list[np.ndarray]
     local_names: list[str]
     local: list[np.ndarray]
+
+    #: a filter residuals are compared through in fits (an equation-error filter effect, :func:`compare_filter`)
+    compare: Callable[[np.ndarray], np.ndarray] | None = None
 
     def predict(self, coefs: dict[str, float], local: dict[str, np.ndarray] | None = None) -> np.ndarray:
         """Return base + sum coef * col (+ per-run columns with per-row coefficients ``local[name]`` (B,))."""
@@ -333,3 +337,13 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
                 cols.append(c)
                 sup.append(np.asarray(sp, bool))
     return Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)
+
+
+def compare_filter(config: Configuration, dt_s: float) -> Callable[[np.ndarray], np.ndarray] | None:
+    """The filter fits compare residuals through: the filter effects' own (equation-error form), chained; None: none."""
+    out = None
+    for a in config.stage("filter"):
+        f = a.effect.compare_filter(a.nl, dt_s)
+        if f is not None:
+            out = f if out is None else (lambda x, f1=out, f2=f: f2(f1(x)))
+    return out

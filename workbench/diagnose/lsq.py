@@ -61,20 +61,28 @@ def accumulate(design, rs, blocks, shared_names: list[str] | None = None) -> Gra
     b_, t_ = rs.shape
     names = design.names if shared_names is None else shared_names
     pos = {n: i for i, n in enumerate(design.names)}
-    resid = (rs.y - design.base).reshape(b_ * t_, 6)
+    compare = getattr(design, "compare", None)
+    resid = rs.y - design.base
+    if compare is not None:  # an equation-error filter effect: residual and columns through its inverse
+        resid = compare(resid)
+    resid = resid.reshape(b_ * t_, 6)
     ticks = blocks.ticks
     pad = ticks < 0
     idx = np.where(pad, 0, ticks)
     wmask = (~pad).astype(float)[..., None]
     r = resid[idx] * wmask                     # (nb, L, 6)
     yy = np.einsum("nlc,nlc->nc", r, r)
-    loc = [c.reshape(b_ * t_, 6)[idx] * wmask for c in design.local]  # each (nb, L, 6)
+    local = design.local if compare is None or not design.local else list(compare(np.stack(design.local)))
+    loc = [c.reshape(b_ * t_, 6)[idx] * wmask for c in local]  # each (nb, L, 6)
     # every shared column gathered once for all channels (a gather per channel and column costs
     # six times as much), as (nb, L, 6, k)
     used = [i for i, n in enumerate(names) if n in pos]
     if used:
         # gather the analysis ticks first (a strided subset), then stack the smaller arrays
-        gathered = np.stack([design.cols[pos[names[i]]].reshape(b_ * t_, 6)[idx] for i in used], axis=-1)
+        src = [design.cols[pos[names[i]]] for i in used]
+        if compare is not None:
+            src = list(compare(np.stack(src)))
+        gathered = np.stack([c.reshape(b_ * t_, 6)[idx] for c in src], axis=-1)
         gathered *= wmask[..., None]
     col_of = {i: j for j, i in enumerate(used)}
     chan_cols, G, bvec = [], [], []

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from workbench.diagnose import lsq
-from workbench.diagnose.chain import Configuration, Lowpass, build_design
+from workbench.diagnose.chain import Configuration, Lowpass, build_design, compare_filter
 from workbench.diagnose.data import Campaign, RunSet, make_blocks, make_runset
 from workbench.hydro.kinematics import DEFAULT_GEOMETRY
 from workbench.hydro.motion import LegMotion
@@ -118,9 +118,11 @@ class Problem:
     def design(self, rs: RunSet, config: Configuration, coefs: dict | None = None, names=None,
                surrogate: bool = False):
         """The configuration on one batch (``surrogate``: servo lags on the model's output, for searches)."""
-        return build_design(self.model, rs, config, coefs, self.lowpass, self.geometry,
-                            only=None if names is None else set(names), cache=self._caches.get(id(rs)),
-                            surrogate=surrogate)
+        d = build_design(self.model, rs, config, coefs, self.lowpass, self.geometry,
+                         only=None if names is None else set(names), cache=self._caches.get(id(rs)),
+                         surrogate=surrogate)
+        d.compare = compare_filter(config, rs.dt_s)
+        return d
 
     def grams(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
               sets: str = "all", surrogate: bool | None = None) -> lsq.Grams:

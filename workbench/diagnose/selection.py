@@ -311,7 +311,7 @@ class StepwiseSelection:
         if objective(out) > objective(best):
             out = best
         profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values())}
-        return dict(zip(pnames, out, strict=False)), profile
+        return effect.searched(dict(zip(pnames, out, strict=False)), problem, config, coefs, names), profile
 
     # ------------------------------------------------------------ candidates
     def _linear_candidates(self, problem, config, coefs, names, effects) -> list[Candidate]:

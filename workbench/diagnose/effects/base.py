@@ -189,6 +189,15 @@ class Effect:
         """Filter stage: the wrench (..., B, T, 6) through the effect (linear in ``w``)."""
         return w
 
+    def compare_filter(self, nl: dict, dt_s: float) -> Callable[[np.ndarray], np.ndarray] | None:
+        """Filter stage, equation-error form: a filter residuals are compared through while the effect is active.
+
+        None (default): the residual is compared as read. A filter effect whose input carries the
+        base model's own misfit returns its inverse (linear, along axis -2 of (..., B, T, 6)): the
+        fit then compares the reading through the inverse with the unfiltered prediction.
+        """
+        return None
+
     def sensor_terms(self, ctx: Context, nl: dict, prediction: np.ndarray) -> Terms:
         """Sensor stage: columns that may depend on the predicted true wrench."""
         return Terms()
@@ -231,6 +240,15 @@ class Effect:
             if rng and v is not None and np.isfinite(v) and not rng[0] <= v <= rng[1]:
                 return f"{k} = {v:.3g} is outside the plausible range [{rng[0]:g}, {rng[1]:g}]"
         return None
+
+    def searched(self, nl: dict, problem, config, coefs: dict, names: list[str]) -> dict:
+        """The searched values as the effect takes them (itself by default).
+
+        An effect whose search criterion is known to be biased corrects the optimum here
+        (``problem``: the fitting problem; ``config``: the configuration without the effect, with
+        ``coefs`` and ``names`` its linear fit).
+        """
+        return nl
 
     def refusal(self, params: dict, settings) -> str | None:
         """Why these fitted values are another effect in disguise (None when they are not).

@@ -56,8 +56,54 @@ def resonance_filter(w: np.ndarray, dt_s: float, f_n_hz: float, zeta: float, axi
     return y
 
 
+def _derivatives(w: np.ndarray, dt_s: float, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """First and second time derivatives of ``w`` along ``axis`` (spectral, after the end-to-end line is taken out).
+
+    The line through the first and last samples is taken out first (its second derivative is
+    zero, its first a constant added back), so the wrap-around of the transform joins no step.
+    The readings are low-passed far below the tick rate, so the spectral derivative is exact there.
+    """
+    ax = axis % w.ndim
+    n = w.shape[ax]
+    shape = [1] * w.ndim
+    shape[ax] = n
+    first, last = np.take(w, [0], axis=ax), np.take(w, [n - 1], axis=ax)
+    line = first + (last - first) * (np.arange(n) / max(n - 1, 1)).reshape(shape)
+    spec = np.fft.rfft(w - line, axis=ax)
+    om = 2 * np.pi * np.fft.rfftfreq(n, dt_s)
+    shape[ax] = len(om)
+    om = om.reshape(shape)
+    d1 = np.fft.irfft(spec * (1j * om), n=n, axis=ax) + (last - first) / (max(n - 1, 1) * dt_s)
+    d2 = np.fft.irfft(spec * (-om * om), n=n, axis=ax)
+    return d1, d2
+
+
+def inverse_mode(w: np.ndarray, dt_s: float, f_n_hz: float, zeta: float, axis: int = -2) -> np.ndarray:
+    """``w`` through the mode's inverse, 1 + 2 zeta s / wn + s^2 / wn^2, along ``axis`` (spectral derivatives)."""
+    w = np.asarray(w, float)
+    wn = 2 * np.pi * f_n_hz
+    d1, d2 = _derivatives(w, dt_s, axis)
+    return w + (2 * zeta / wn) * d1 + d2 / (wn * wn)
+
+
+#: how the mode is fitted (option ``form``): ``equation`` compares the reading through the inverse mode
+#: with the unfiltered prediction, ``output`` the reading with the prediction through the mode
+FORMS = ("equation", "output")
+
+
 class StructuralResonance(Effect):
-    """Reading = true wrench through a 2nd-order mode wn^2 / (s^2 + 2 zeta wn s + wn^2), all channels."""
+    """Reading = true wrench through a 2nd-order mode wn^2 / (s^2 + 2 zeta wn s + wn^2), all channels.
+
+    Option ``form``: how the mode is *fitted* (the prediction is the same: the model's wrench
+    through the mode). A base model's own misfit e enters the mount before the mode, so the
+    reading is H (M + e): in ``output`` error form the fit compares it with H M and the residual
+    H e is the misfit amplified near f_n, which pulls the mode away; in ``equation`` error form
+    (default) the reading passes the inverse mode and is compared with M, and the residual is e
+    itself whatever the mode (the readings' noise is amplified instead, a second order effect
+    at the rig's signal levels). An inverse mode is also a notch at f_n and a slope across the
+    band, which lower residual power whatever its cause, so a candidate must lower the held-out
+    residual in every band and channel that holds some of it (:meth:`check`).
+    """
 
     name = "structural_resonance"
     ranges = {"f_n_hz": (0.7, 12.0), "zeta": (0.0, 1.0)}
@@ -69,6 +115,28 @@ class StructuralResonance(Effect):
     search = (SearchParam("f_n_hz", tuple(np.round(np.arange(1.0, 8.01, 0.25), 2)), (0.5, 12.0)),
               SearchParam("zeta", (0.12,), (0.005, 1.5), log=True))
     location_params = ("f_n_hz", "zeta")
+
+    #: the equation-error check (:meth:`check`): band width (Hz), the largest rise allowed in a band, and
+    #: the share of a channel's residual power a band must hold to count
+    band_hz = 1.0
+    max_band_raise = 1.1
+    min_band_share = 0.01
+    #: the largest relative change of f_n the bias compensation may make (:meth:`searched`)
+    max_compensation = 0.3
+    compensation_passes = 4
+
+    def __init__(self, form: str = "equation"):
+        if form not in FORMS:
+            from workbench.errors import ModelError
+
+            raise ModelError(f"structural_resonance: form {form!r} is not one of {FORMS}")
+        self.form = form
+
+    def options(self) -> dict:  # noqa: D102
+        return {"form": self.form}
+
+    def __repr__(self) -> str:
+        return f"StructuralResonance(form={self.form!r})"
 
     def refusal(self, params: dict, settings) -> str | None:
         """A heavily damped mode is a delay in disguise (mount and sting modes are lightly damped)."""
@@ -83,6 +151,110 @@ class StructuralResonance(Effect):
 
     def filter_wrench(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:  # noqa: D102
         return resonance_filter(w, dt_s, nl["f_n_hz"], nl["zeta"], axis=-2)
+
+    def compare_filter(self, nl: dict, dt_s: float):
+        """Equation-error form: residuals are compared through the inverse mode (None in output-error form)."""
+        if self.form != "equation":
+            return None
+        f_n, zeta = float(nl["f_n_hz"]), float(nl["zeta"])
+
+        def inverse(x: np.ndarray) -> np.ndarray:
+            return inverse_mode(x, dt_s, f_n, zeta, axis=-2)
+
+        return inverse
+
+    def searched(self, nl: dict, problem, config, coefs: dict, names: list[str]) -> dict:
+        """Equation-error form: the least-squares optimum compensated for the misfit inside the reading.
+
+        The equation error is linear in a = (2 zeta / wn, 1 / wn^2): ``M - y = a1 y' + a2 y'' - e``
+        with y = H (M + e) the reading. Its regressors y', y'' carry the misfit (H e)', (H e)'', so
+        least squares returns ``a - (Phi'Phi)^-1 Phi_e' e``, a damping too low by about the misfit's
+        share of the reading's power near f_n (bias-compensated least squares). The misfit is
+        estimated by the equation error at the compensated values and the term added back to the
+        optimum (``compensation_passes`` fixed-point passes), on the search runs. A correction that moves f_n by more than ``max_compensation`` (relative) or
+        leaves the plausible range is not made.
+        """
+        if self.form != "equation" or not {"f_n_hz", "zeta"} <= set(nl):
+            return nl
+        from workbench.diagnose.chain import Active
+
+        out = dict(nl)
+        wn = 2 * np.pi * nl["f_n_hz"]
+        a_hat = np.array([2 * nl["zeta"] / wn, 1 / (wn * wn)])
+        for _ in range(self.compensation_passes):
+            gram, bias = np.zeros((2, 2)), np.zeros(2)
+            for rs, _blocks in problem.sets("search"):
+                d = problem.design(rs, config.with_effect(Active(self, out)), coefs, names)
+                e = inverse_mode(rs.y - d.predict(coefs), rs.dt_s, out["f_n_hz"], out["zeta"])
+                phi = _derivatives(rs.y, rs.dt_s, -2)
+                phi_e = _derivatives(resonance_filter(e, rs.dt_s, out["f_n_hz"], out["zeta"]), rs.dt_s, -2)
+                m = rs.fit
+                w = problem.weights
+                for i in range(2):
+                    bias[i] += float((phi_e[i][m] * e[m] * w).sum())
+                    for j in range(2):
+                        gram[i, j] += float((phi[i][m] * phi[j][m] * w).sum())
+            try:
+                a = a_hat + np.linalg.solve(gram, bias)
+            except np.linalg.LinAlgError:
+                return nl
+            if not (np.all(np.isfinite(a)) and a[0] > 0 and a[1] > 0):
+                return nl
+            wn_new = 1 / np.sqrt(a[1])
+            new = {**out, "f_n_hz": float(wn_new / (2 * np.pi)), "zeta": float(a[0] * wn_new / 2)}
+            if (abs(new["f_n_hz"] / nl["f_n_hz"] - 1) > self.max_compensation
+                    or self.implausible({k: new[k] for k in ("f_n_hz", "zeta")})):
+                return nl
+            out = new
+        return out
+
+    def check(self, cand, probe, config, fit) -> str | None:
+        """Equation-error form: the inverse mode must lower the held-out residual in every band, not just in sum.
+
+        A mount mode filters the whole reading, so its inverse turns the reading back into the true
+        wrench and leaves the base model's own misfit, which is no larger than the misfit seen
+        through the mode at any frequency. An inverse "mode" that is a notch on residual power (a
+        misfit or a line near some frequency) or a slope across the band (attenuating the misfit's
+        high end) lowers the sum but raises the residual where the model's force is large against
+        its misfit. Checked per channel in bands of ``band_hz`` up to the cutoff, on the held-out
+        runs, where a band holds at least ``min_band_share`` of the channel's residual power.
+        """
+        if self.form != "equation":
+            return None
+        nl = cand.active.nl
+        edges = np.arange(0.0, probe.cutoff + self.band_hz / 2, self.band_hz)
+        before = _band_power([r for r in probe.residuals(config, fit) if r.heldout], edges, None)
+        after = _band_power([r for r in probe.run_residuals(cand.config, cand.fit) if r.heldout], edges,
+                            (float(nl["f_n_hz"]), float(nl["zeta"])))
+        if before is None or after is None:
+            return None
+        counted = before >= self.min_band_share * before.sum(axis=0, keepdims=True)
+        ratio = np.where(counted, after / np.maximum(before, 1e-300), 0.0)
+        b, c = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        if ratio[b, c] > self.max_band_raise:
+            from workbench.contract.columns import WRENCH_CHANNELS
+
+            return (f"the inverse mode raises the held-out residual of {WRENCH_CHANNELS[c]} at "
+                    f"{edges[b]:g}-{edges[b + 1]:g} Hz {ratio[b, c]:.2f}x (a mount mode lowers it everywhere)")
+        return None
+
+
+def _band_power(runs: list, edges: np.ndarray, mode: tuple[float, float] | None) -> np.ndarray | None:
+    """Residual power of the runs' analysed ticks per band (rows) and channel, the residual through the inverse mode."""
+    out = np.zeros((len(edges) - 1, 6))
+    for r in runs:
+        x = r.resid
+        if mode is not None:
+            x = inverse_mode(x, r.dt_s, mode[0], mode[1], axis=0)
+        x = x[r.fit]
+        if len(x) < 8:
+            continue
+        spec = np.abs(np.fft.rfft(x - x.mean(axis=0), axis=0)) ** 2
+        freq = np.fft.rfftfreq(len(x), r.dt_s)
+        band = np.digitize(freq, edges) - 1
+        ok = (band >= 0) & (band < len(edges) - 1)
+        np.add.at(out, band[ok], spec[ok])
+    return out if out.any() else None
 
 
 LIBRARY_RANK = 4  # place in the library's order (workbench.diagnose.library._in_tree)
