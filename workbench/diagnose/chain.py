@@ -94,17 +94,22 @@ class Design:
     support: list[np.ndarray]
     local_names: list[str]
     local: list[np.ndarray]
+    #: columns the model predicts with where they differ from the fitted ones, by qualified name (``Terms.predict``)
+    predict_cols: dict[str, np.ndarray] = field(default_factory=dict)
 
     #: a filter residuals are compared through in fits (an equation-error filter effect, :func:`compare_filter`)
     compare: Callable[[np.ndarray], np.ndarray] | None = None
 
     def predict(self, coefs: dict[str, float], local: dict[str, np.ndarray] | None = None) -> np.ndarray:
-        """Return base + sum coef * col (+ per-run columns with per-row coefficients ``local[name]`` (B,))."""
+        """Return base + sum coef * col (+ per-run columns with per-row coefficients ``local[name]`` (B,)).
+
+        A column with a predicting form (``predict_cols``) predicts with that form.
+        """
         out = self.base.copy()
         for n, c in zip(self.names, self.cols, strict=False):
             v = coefs.get(n, 0.0)
             if v:
-                out += v * c
+                out += v * self.predict_cols.get(n, c)
         for n, c in zip(self.local_names, self.local, strict=False):
             if local and n in local:
                 out += local[n][:, None, None] * c
@@ -329,14 +334,29 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
         v = coefs.get(n, 0.0)
         if v:
             prediction += v * c
+    d = Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)
     for a in config.stage("sensor"):
-        t = a.effect.sensor_terms(ctx, a.nl, prediction)
-        for n, c, sp in zip(t.names, t.cols, t.support, strict=False):
-            if _keep(f"{a.name}.{n}", only):
-                names.append(f"{a.name}.{n}")
-                cols.append(c)
-                sup.append(np.asarray(sp, bool))
-    return Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)
+        _add_sensor_terms(d, a, a.effect.sensor_terms(ctx, a.nl, prediction), only)
+    return d
+
+
+def _add_sensor_terms(d: Design, a: Active, t, only: set[str] | None) -> None:
+    """Append one sensor effect's columns to ``d`` (in place), with their predicting form where it differs.
+
+    A per-run column that goes with an entry the fit leaves out (``Terms.local_owner``) is left out too.
+    """
+    for n, c, sp in zip(t.names, t.cols, t.support, strict=False):
+        if _keep(f"{a.name}.{n}", only):
+            d.names.append(f"{a.name}.{n}")
+            d.cols.append(c)
+            d.support.append(np.asarray(sp, bool))
+            if t.predict and n in t.predict:
+                d.predict_cols[f"{a.name}.{n}"] = t.predict[n]
+    owners = t.local_owner or [None] * len(t.local_names)
+    for n, c, o in zip(t.local_names, t.local, owners, strict=False):
+        if o is None or _keep(f"{a.name}.{o}", only):
+            d.local_names.append(f"{a.name}.{n}")
+            d.local.append(c)
 
 
 def compare_filter(config: Configuration, dt_s: float) -> Callable[[np.ndarray], np.ndarray] | None:

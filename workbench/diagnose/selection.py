@@ -615,8 +615,9 @@ class StepwiseSelection:
     def _assess(self, problem, c: Candidate, coefs, current, config, level: float, plausible) -> None:
         """Judge a candidate on the held-out runs and check every claim criterion (sets ``c.ok``, ``c.note``)."""
         s = self.settings
-        corr = self._null_correction(problem, c, coefs, current)
-        c.test, c.gain_c = judge(current, c.fit, c.fit.grams, problem.settings.hac_lags, corr)
+        judged = self._judged(problem, c, coefs)
+        corr = self._null_correction(problem, judged, coefs, current)
+        c.test, c.gain_c = judge(current, judged.fit, judged.fit.grams, problem.settings.hac_lags, corr)
         reasons = []
         if c.test["p"] >= level:
             reasons.append(f"not significant (p={c.test['p']:.2g} >= {level:.2g})")
@@ -664,6 +665,20 @@ class StepwiseSelection:
                 out += [n for n in names if n not in out]
         return out
 
+    @staticmethod
+    def _judged(problem, c: Candidate, coefs) -> Candidate:
+        """The candidate as its held-out test sees it: refitted under its effect's judging values, if any.
+
+        A single effect only (``Effect.judged_as``: per-run nuisance columns beside a drift); a pair
+        is judged as fitted.
+        """
+        nl = c.effect.judged_as(dict(c.active.nl)) if c.partner is None else None
+        if nl is None:
+            return c
+        act = Active(c.effect, nl)
+        cfg = c.config.with_effect(act)
+        return Candidate(c.effect, act, cfg, c.names, problem.fit(cfg, coefs, c.names))
+
     def _backward_check(self, problem, config, names, current, steps):
         """Drop effects that no longer earn their place once the others are final (collinear partners).
 
@@ -680,8 +695,15 @@ class StepwiseSelection:
             for a in config.actives:
                 rest = config.without(a.name)
                 rnames = [n for n in names if not n.startswith(a.name + ".")]
-                f = problem.fit(rest, current.coefs(), rnames)
-                test, gain = judge(f, current, current.grams, hac)
+                f, after = problem.fit(rest, current.coefs(), rnames), current
+                jn = a.effect.judged_as(dict(a.nl))
+                if jn is not None:
+                    # judged as at its step: beside its nuisance, against the nuisance alone
+                    after = problem.fit(config.with_effect(Active(a.effect, jn)), current.coefs(), names)
+                    nulls = a.effect.null_variants(jn)
+                    if nulls:
+                        f = problem.fit(config.with_effect(Active(a.effect, nulls[0])), current.coefs(), names)
+                test, gain = judge(f, after, after.grams, hac)
                 verdicts.append((test["llr"], a, rnames, test, gain))
             llr, a, rnames, test, gain = min(verdicts, key=lambda v: v[0])
             if test["p"] >= level or gain.max() < s.min_gain:

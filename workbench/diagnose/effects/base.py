@@ -55,6 +55,12 @@ class Terms:
 
     Columns are wrenches ``(B, T, 6)`` of a unit parameter; ``support`` lists the channels in
     which each column can be nonzero (crosstalk and drift touch one channel each).
+
+    ``predict``: where the model predicts with other columns than those it is fitted and judged
+    on, the predicting ones by name (a drift is fitted on each run's settled span, its level
+    there taken out, and predicts ``rate * t``); None: the same. ``local_owner``: per per-run
+    column of the sensor stage, the linear parameter it goes with (a fit that leaves that
+    entry out leaves the column out too); empty: none.
     """
 
     names: list[str] = field(default_factory=list)
@@ -63,6 +69,8 @@ class Terms:
     fixed: np.ndarray | None = None
     local_names: list[str] = field(default_factory=list)
     local: list[np.ndarray] = field(default_factory=list)
+    predict: dict[str, np.ndarray] | None = None
+    local_owner: list[str] = field(default_factory=list)
 
 
 class Context:
@@ -260,6 +268,15 @@ class Effect:
     def null_variants(self, nl: dict) -> list[dict]:
         """Parameter values that should explain nothing (the null of per-run nuisance fits)."""
         return []
+
+    def judged_as(self, nl: dict) -> dict | None:
+        """The values the effect is judged under on held-out runs, when they differ from ``nl`` (None: ``nl``).
+
+        An effect whose held-out test needs per-run nuisance columns beside it (a drift, beside
+        each run's level) adds them only under these values, and its :meth:`null_variants` of
+        them give the same nuisance alone; the model keeps ``nl``.
+        """
+        return None
 
     # ------------------------------------------------------------- the evidence
     def hint(self, ev, params: dict) -> str:
