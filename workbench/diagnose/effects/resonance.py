@@ -106,7 +106,9 @@ class StructuralResonance(Effect):
     """
 
     name = "structural_resonance"
-    ranges = {"f_n_hz": (0.7, 12.0), "zeta": (0.0, 1.0)}
+    # a damping below 0.01 is a notch on residual power, not a structure (the equation-error search
+    # runs to its bound where the misfit has power and no mode is there)
+    ranges = {"f_n_hz": (0.7, 12.0), "zeta": (0.01, 1.0)}
     stage = "filter"
     physical = False
     formula = "W_read = W wn^2 / (s^2 + 2 zeta wn s + wn^2), wn = 2 pi f_n_hz"
@@ -119,7 +121,7 @@ class StructuralResonance(Effect):
     #: the equation-error check (:meth:`check`): band width (Hz), the largest rise allowed in a band, and
     #: the share of a channel's residual power a band must hold to count
     band_hz = 1.0
-    max_band_raise = 1.1
+    max_band_raise = 2.0
     min_band_share = 0.01
     #: the largest relative change of f_n the bias compensation may make (:meth:`searched`)
     max_compensation = 0.3
@@ -209,15 +211,18 @@ class StructuralResonance(Effect):
         return out
 
     def check(self, cand, probe, config, fit) -> str | None:
-        """Equation-error form: the inverse mode must lower the held-out residual in every band, not just in sum.
+        """Equation-error form: the inverse mode must not raise the held-out residual grossly in any band.
 
         A mount mode filters the whole reading, so its inverse turns the reading back into the true
-        wrench and leaves the base model's own misfit, which is no larger than the misfit seen
-        through the mode at any frequency. An inverse "mode" that is a notch on residual power (a
-        misfit or a line near some frequency) or a slope across the band (attenuating the misfit's
-        high end) lowers the sum but raises the residual where the model's force is large against
-        its misfit. Checked per channel in bands of ``band_hz`` up to the cutoff, on the held-out
-        runs, where a band holds at least ``min_band_share`` of the channel's residual power.
+        wrench and leaves the base model's own misfit e, against e + (H - 1)(M + e) without it: in
+        a band where the misfit happens to cancel part of (H - 1)(M + e) the inverse raises the
+        residual (1.6x measured in ty at 1-2 Hz for a right 3.8 Hz mode with the FED-LSTM), so a
+        rise alone is no proof. An inverse "mode" that only attenuates residual power (a slope
+        across the band, a notch) raises it where the model's force is large against its misfit,
+        and the search drives it to the damping's bound (refused as implausible, zeta < 0.01).
+        Checked per channel in bands of ``band_hz`` up to the cutoff, on the held-out runs, where a
+        band holds at least ``min_band_share`` of the channel's residual power: more than
+        ``max_band_raise`` times the residual is refused.
         """
         if self.form != "equation":
             return None
@@ -235,7 +240,7 @@ class StructuralResonance(Effect):
             from workbench.contract.columns import WRENCH_CHANNELS
 
             return (f"the inverse mode raises the held-out residual of {WRENCH_CHANNELS[c]} at "
-                    f"{edges[b]:g}-{edges[b + 1]:g} Hz {ratio[b, c]:.2f}x (a mount mode lowers it everywhere)")
+                    f"{edges[b]:g}-{edges[b + 1]:g} Hz {ratio[b, c]:.2f}x")
         return None
 
 
