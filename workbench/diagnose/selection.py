@@ -181,33 +181,34 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
 
 
 def _null_spread_test(raw: np.ndarray, nulls: np.ndarray, run: np.ndarray) -> dict:
-    """A per-run fit's gain beyond its off-peak variants', against their spread, clustered by run.
+    """A per-run fit's gain against the same fit's gains at its ``k`` off-peak variants, run by run.
 
     Where nothing is there, the fit at the proposed value is one more draw of what the variants
-    gain, so per run ``D = sum(raw - mean(nulls))`` has variance ``(1 + 1/k) var_k(sum nulls)``.
-    Gains that differ from run to run (a tone carried by ``U dF/dU`` is 16 times stronger at twice
-    the flow speed) then count as evidence, not as scatter; runs where the variants all gain the
-    same as the fit (they cannot tell the value) carry none. t with ``runs x (k - 1)`` degrees of freedom.
+    gain: in each run a per-run fit of a few columns gains about a scaled chi-square, so the
+    ratio of the run's gain to the variants' mean is F-distributed (degrees of freedom from the
+    variants' own spread, pooled over runs), and the runs' p-values combine by Fisher's method.
+    A gain that differs from run to run (a tone carried by ``U dF/dU`` is 16 times stronger at
+    twice the flow speed) then counts as evidence, not as scatter; runs where the variants gain
+    what the fit gains (they cannot tell the value) carry none. ``t``: the normal quantile of p.
     """
     k = len(nulls)
-    num = var = 0.0
-    used = 0
+    rows = []
     for r in np.unique(run):
         m = run == r
-        per = nulls[:, m].sum(axis=1)
-        s2 = float(np.var(per, ddof=1))
-        d = float(raw[m].sum() - per.mean())
+        x, per = float(raw[m].sum()), nulls[:, m].sum(axis=1)
         scale = 1e-9 * max(float(np.abs(raw[m]).sum() + np.abs(per).sum()), 1e-300)
-        if s2 <= scale ** 2 and abs(d) <= scale:
-            continue
-        num += d
-        var += (1 + 1 / k) * s2
-        used += 1
-    if not used or var <= 0:
-        return {"t": 0.0, "p": 1.0, "llr": num, "n_blocks": int(len(raw))}
-    t = num / np.sqrt(var)
-    df = used * (k - 1)
-    return {"t": float(t), "p": float(stats.t.sf(t, df=df)), "llr": float(num), "n_blocks": int(len(raw))}
+        if np.ptp(per) > scale or abs(x - per.mean()) > scale:
+            rows.append((x, per))
+    rows = [(x, per) for x, per in rows if per.mean() > 0]
+    llr = float(sum(x - per.mean() for x, per in rows))
+    if not rows:
+        return {"t": 0.0, "p": 1.0, "llr": llr, "n_blocks": int(len(raw))}
+    # a chi-square of nu degrees of freedom has var / mean^2 = 2 / nu
+    cv2 = float(np.mean([np.var(per, ddof=1) / per.mean() ** 2 for _, per in rows]))
+    nu = float(np.clip(2.0 / max(cv2, 1e-6), 1.0, 200.0))
+    logp = sum(float(stats.f.logsf(max(x, 0.0) / per.mean(), nu, k * nu)) for x, per in rows)
+    p = float(stats.chi2.sf(-2.0 * logp, 2 * len(rows)))
+    return {"t": float(stats.norm.isf(max(p, 1e-300))), "p": p, "llr": llr, "n_blocks": int(len(raw))}
 
 
 @dataclass
