@@ -30,7 +30,7 @@ class FlowUnsteadiness(Effect):
 
     location_params = ("tone_hz", "rms_fraction")
 
-    def __init__(self, sensitivity: str = "measured", stroke_free: str | bool = False):
+    def __init__(self, sensitivity: str = "measured", stroke_free: str | bool = "auto"):
         """``sensitivity``: ``measured`` (across the campaign's flow speeds, else the model's) or ``model``.
 
         ``stroke_free``: project each run's stroke-locked part out of the tone's columns, in the
@@ -178,6 +178,9 @@ class FlowUnsteadiness(Effect):
     def hint(self, ev, params: dict) -> str:  # noqa: D102
         return f"a tone at {params.get('tone_hz', float('nan')):.2f} Hz rides on the flow sensitivity of the force"
 
+    #: a run's stroke-free columns must keep this share of the plain ones' power, else they carry no tone
+    MIN_FREE_SHARE = 0.25
+
     #: per-run columns: the tone where the run can tell it from the stroke, and where it cannot
     LOCAL = ("tone_sin", "tone_cos", "tone_sin_h", "tone_cos_h")
 
@@ -189,7 +192,7 @@ class FlowUnsteadiness(Effect):
         regressing the residual on them then equals a joint fit with a free stroke-locked
         waveform, so the base model's misfit does not set the tone's amplitude and phase). Runs
         whose harmonics hit the tone carry it in a second pair of columns (``*_h``) that is the
-        same in the off-peak null fits (``mask_hz``): there the tone cannot be told from the
+        same in the off-peak null fits (``held_hz``): there the tone cannot be told from the
         stroke-locked misfit, so those runs take no part in the tone's test nor in its fraction,
         but their error is still fitted. Outside a diagnosis (an augmented model predicting a run)
         both pairs carry the tone's own columns, so a run's fitted values predict ``g sin`` itself.
@@ -208,16 +211,22 @@ class FlowUnsteadiness(Effect):
         freq = np.asarray(rs.freq, float)
         dur = np.asarray(rs.fit, bool).sum(axis=1) * ctx.dt_s
         hit = on_harmonic(self._mask_hz(nl), freq, dur)[:, None, None]
-        if "mask_hz" in nl:
+        if "held_hz" in nl:
             # an off-peak null fit: the runs on a harmonic keep the candidate's own columns
-            ph0 = 2 * np.pi * nl["mask_hz"] * ctx.time_s
+            ph0 = 2 * np.pi * nl["held_hz"] * ctx.time_s
             held = [g * np.sin(ph0)[..., None], g * np.cos(ph0)[..., None]]
         else:
             held = raw
         # every gait harmonic below the low-pass cutoff (a slow gait has more than the evidence's 12)
         free_cols = [without_stroke(c, ctx.time_s, rs.fit, freq, max_harmonics=24) for c in raw]
+        # a run whose harmonics the searched frequency itself hits keeps too little of its columns: what
+        # is left (the harmonics' slow change over the run) fits the misfit's, not a tone
+        fit = np.asarray(rs.fit, bool)[..., None]
+        kept = sum(np.sum(np.where(fit, c, 0.0) ** 2, axis=(1, 2)) for c in free_cols)
+        full = sum(np.sum(np.where(fit, c, 0.0) ** 2, axis=(1, 2)) for c in raw)
+        gone = (kept < self.MIN_FREE_SHARE * full)[:, None, None]
         return Terms(local_names=list(self.LOCAL),
-                     local=[np.where(hit, 0.0, c) for c in free_cols] + [np.where(hit, c, 0.0) for c in held])
+                     local=[np.where(hit | gone, 0.0, c) for c in free_cols] + [np.where(hit, c, 0.0) for c in held])
 
     def _free(self, rs, nl: dict) -> bool:
         """Stroke-free columns: ``nl["stroke_free"]`` (the line check's fit) or the option (``auto``: no reference)."""
@@ -240,10 +249,16 @@ class FlowUnsteadiness(Effect):
         near = [a for a in self._anchors if abs(a - f) <= 0.2]
         return min(near, key=lambda a: abs(a - f)) if near else f
 
+    #: off-peak frequencies of the null fits (Hz from the tone): their mean is what a per-run fit gains on
+    #: the residual's own spectrum, their spread how much that varies (``selection.judge``)
+    NULL_OFFSETS_HZ = (-0.6, -0.45, -0.3, 0.3, 0.45, 0.6)
+
     def null_variants(self, nl: dict) -> list[dict]:  # noqa: D102
         f = nl["tone_hz"]
         extra = {"stroke_free": nl["stroke_free"]} if "stroke_free" in nl else {}
-        return [{"tone_hz": f + d, "mask_hz": f, **extra} for d in (-0.35, 0.35) if f + d > 0.05]
+        # the same runs on a harmonic as the candidate's (its mask, not the searched frequency)
+        mask = self._mask_hz(nl)
+        return [{"tone_hz": f + d, "mask_hz": mask, "held_hz": f, **extra} for d in self.NULL_OFFSETS_HZ if f + d > 0.05]
 
     def canonical_params(self, coefs, nl, cov, local=None):  # noqa: D102
         params = {"tone_hz": nl["tone_hz"], "tone_fraction": float("nan"), "rms_fraction": None}
