@@ -96,6 +96,9 @@ class Design:
     local: list[np.ndarray]
     #: columns the model predicts with where they differ from the fitted ones, by qualified name (``Terms.predict``)
     predict_cols: dict[str, np.ndarray] = field(default_factory=dict)
+    #: a known part of the reading the fits take off before fitting, which ``predict`` leaves to
+    #: ``predict_cols`` (``Terms.fit_offset``); None: none
+    fit_offset: np.ndarray | None = None
 
     #: a filter residuals are compared through in fits (an equation-error filter effect, :func:`compare_filter`)
     compare: Callable[[np.ndarray], np.ndarray] | None = None
@@ -335,6 +338,7 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
         if v:
             prediction += v * c
     d = Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)
+    ctx.coefs = coefs  # the current coefficients, for a sensor effect's known part (Terms.fit_offset)
     for a in config.stage("sensor"):
         _add_sensor_terms(d, a, a.effect.sensor_terms(ctx, a.nl, prediction), only)
     return d
@@ -352,6 +356,8 @@ def _add_sensor_terms(d: Design, a: Active, t, only: set[str] | None) -> None:
             d.support.append(np.asarray(sp, bool))
             if t.predict and n in t.predict:
                 d.predict_cols[f"{a.name}.{n}"] = t.predict[n]
+    if t.fit_offset is not None:
+        d.fit_offset = t.fit_offset if d.fit_offset is None else d.fit_offset + t.fit_offset
     owners = t.local_owner or [None] * len(t.local_names)
     for n, c, o in zip(t.local_names, t.local, owners, strict=False):
         if o is None or _keep(f"{a.name}.{o}", only):

@@ -63,6 +63,8 @@ def accumulate(design, rs, blocks, shared_names: list[str] | None = None) -> Gra
     pos = {n: i for i, n in enumerate(design.names)}
     compare = getattr(design, "compare", None)
     resid = rs.y - design.base
+    if getattr(design, "fit_offset", None) is not None:  # a known part the fit takes off, not predicted apart
+        resid = resid - design.fit_offset
     if compare is not None:  # an equation-error filter effect: residual and columns through its inverse
         resid = compare(resid)
     resid = resid.reshape(b_ * t_, 6)

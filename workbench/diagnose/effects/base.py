@@ -60,7 +60,9 @@ class Terms:
     on, the predicting ones by name (a drift is fitted on each run's settled span, its level
     there taken out, and predicts ``rate * t``); None: the same. ``local_owner``: per per-run
     column of the sensor stage, the linear parameter it goes with (a fit that leaves that
-    entry out leaves the column out too); empty: none.
+    entry out leaves the column out too); empty: none. ``fit_offset``: a known part of the
+    reading (B, T, 6) the fits take off before fitting the columns and that the prediction
+    leaves to ``predict`` (a drift's level in each run at its current rate); None: none.
     """
 
     names: list[str] = field(default_factory=list)
@@ -71,6 +73,7 @@ class Terms:
     local: list[np.ndarray] = field(default_factory=list)
     predict: dict[str, np.ndarray] | None = None
     local_owner: list[str] = field(default_factory=list)
+    fit_offset: np.ndarray | None = None
 
 
 class Context:
@@ -83,6 +86,8 @@ class Context:
         self.geometry = geometry
         self.rho = rho_kgpm3
         self._flow_cache: dict[float, np.ndarray] = {}
+        #: the current values of the linear coefficients (qualified names), set before the sensor stage
+        self.coefs: dict[str, float] = {}
 
     @property
     def dt_s(self) -> float:

@@ -14,7 +14,10 @@ So the drift is *fitted* on each run's settled span only, and within runs only: 
 drift's column with a per-run nuisance (the run's level, a free line on each unsettled end)
 projected out, so its least-squares rate is that of a joint fit with the nuisance on every run
 (Frisch-Waugh-Lovell) while the other effects' fits keep every run's level. The model *predicts*
-with ``rate * t`` (``Terms.predict``), the formula. The held-out *test* needs the nuisance
+with ``rate * t`` (``Terms.predict``), the formula, and the fits take the rest of it (each run's
+level, its ends) off the readings at the current rate (``Terms.fit_offset``), so that no other
+effect takes a drift's level for its own (a weight fitted 11 mN of a 2 mN/s drift's level
+before). The held-out *test* needs the nuisance
 itself: a 2 s block's share of the column times the run's level (tens of mN) swamps the drift's
 gain in that block although it cancels over the run. So the selection judges the drift under
 ``judge`` (:meth:`SensorDrift.judged_as`): the nuisance as per-run columns in each fitted
@@ -89,12 +92,17 @@ class SensorDrift(Effect):
             n = np.maximum(settled.sum(axis=1, keepdims=True), 1)
             mean = (t * settled).sum(axis=1, keepdims=True) / n
             fit_t = np.where(settled, t - mean, 0.0)
-        if nl.get("null"):
-            fit_t = np.zeros_like(t)
+        within = np.zeros_like(t) if nl.get("null") else fit_t
+        offset = None
         names, cols, sup, pred = [], [], [], {}
         for c in range(6):
             col = np.zeros(t.shape + (6,))
-            col[..., c] = fit_t
+            col[..., c] = within
+            rate = float(getattr(ctx, "coefs", {}).get(f"{self.name}.{self.entry(c)}", 0.0))
+            if spans is not None and rate:
+                # the part the within-run column leaves out (each run's level and its ends) at the current rate
+                offset = np.zeros(t.shape + (6,)) if offset is None else offset
+                offset[..., c] = rate * (t - fit_t)
             s = np.zeros(6, bool)
             s[c] = True
             names.append(self.entry(c))
@@ -104,7 +112,7 @@ class SensorDrift(Effect):
                 p = np.zeros(t.shape + (6,))
                 p[..., c] = t
                 pred[self.entry(c)] = p
-        terms = Terms(names, cols, sup, predict=pred or None)
+        terms = Terms(names, cols, sup, predict=pred or None, fit_offset=offset)
         if spans is not None and nl.get("judge"):
             self._nuisance(terms, ctx.rs, t, spans)
         return terms
