@@ -100,7 +100,7 @@ class Design:
     #: ``predict_cols`` (``Terms.fit_offset``); None: none
     fit_offset: np.ndarray | None = None
 
-    #: a filter residuals are compared through in fits (an equation-error filter effect, :func:`compare_filter`)
+    #: the filter residuals are compared through in fits (an equation-error filter effect, :func:`compare_filter`)
     compare: Callable[[np.ndarray], np.ndarray] | None = None
 
     def predict(self, coefs: dict[str, float], local: dict[str, np.ndarray] | None = None) -> np.ndarray:

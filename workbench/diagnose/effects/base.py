@@ -203,7 +203,7 @@ class Effect:
         return w
 
     def compare_filter(self, nl: dict, dt_s: float) -> Callable[[np.ndarray], np.ndarray] | None:
-        """Filter stage, equation-error form: a filter residuals are compared through while the effect is active.
+        """Filter stage, equation-error form: the filter residuals are compared through while the effect is active.
 
         None (default): the residual is compared as read. A filter effect whose input carries the
         base model's own misfit returns its inverse (linear, along axis -2 of (..., B, T, 6)): the
