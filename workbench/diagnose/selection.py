@@ -208,7 +208,7 @@ def _null_spread_test(raw: np.ndarray, nulls: np.ndarray, run: np.ndarray) -> di
     nu = float(np.clip(2.0 / max(cv2, 1e-6), 1.0, 200.0))
     logp = sum(float(stats.f.logsf(max(x, 0.0) / per.mean(), nu, k * nu)) for x, per in rows)
     p = float(stats.chi2.sf(-2.0 * logp, 2 * len(rows)))
-    return {"t": float(stats.norm.isf(max(p, 1e-300))), "p": p, "llr": llr, "n_blocks": int(len(raw))}
+    return {"t": float(stats.norm.isf(min(max(p, 1e-300), 1 - 1e-12))), "p": p, "llr": llr, "n_blocks": int(len(raw))}
 
 
 @dataclass
