@@ -97,11 +97,11 @@ def test_the_drift_column_carries_no_run_level_and_nothing_on_the_unsettled_ends
     # and the whole synthetic run (stroke waveform, transients, noise, level, drift) gives it within 20 %
     assert rate_of(y[:, 2]) == pytest.approx(rate, rel=0.2)
     assert np.array_equal(terms.predict["rate_fz_n_per_s"][0, :, 2], np.clip(t, 0, None))
-    # judged beside its nuisance: a level and a free line on each end, per channel, named for their entry
+    # judged beside its nuisance (level, a free line on each end, the stroke-locked waveform), per channel
     judged = eff.sensor_terms(ctx, eff.judged_as({}), np.zeros_like(y[None]))
-    assert len(judged.local) == 30 and set(judged.local_owner) == set(eff.linear_names())
+    assert len(judged.local) == 6 * (5 + 2 * eff.stroke) and set(judged.local_owner) == set(eff.linear_names())
     null = eff.sensor_terms(ctx, eff.null_variants(eff.judged_as({}))[0], np.zeros_like(y[None]))
-    assert not np.any(null.cols[2]) and len(null.local) == 30
+    assert not np.any(null.cols[2]) and len(null.local) == len(judged.local)
 
 
 # ----------------------------------------------------------------------------- slow: the FED-LSTM

@@ -49,8 +49,9 @@ class SensorDrift(Effect):
     prunable = True
     formula = "W_read += rate * t, t since the first trigger edge"
 
-    def __init__(self, settling: bool = True, settle_ratio: float = 5.0, window_s: float = 0.5):
+    def __init__(self, settling: bool = True, settle_ratio: float = 5.0, window_s: float = 0.5, stroke: int = 12):
         self.settling = bool(settling)
+        self.stroke = int(stroke)
         self.settle_ratio = float(settle_ratio)
         self.window_s = float(window_s)
         # per batch of runs (by identity; the batch is kept so that its id is not reused): the
@@ -61,7 +62,8 @@ class SensorDrift(Effect):
         return f"SensorDrift(settling={self.settling})"
 
     def options(self) -> dict:  # noqa: D102
-        return {"settling": self.settling, "settle_ratio": self.settle_ratio, "window_s": self.window_s}
+        return {"settling": self.settling, "settle_ratio": self.settle_ratio, "window_s": self.window_s,
+                "stroke": self.stroke}
 
     def hint(self, ev, params: dict) -> str:  # noqa: D102
         c = max(WRENCH_CHANNELS, key=lambda k: abs(ev.trend[k]["t"]))
@@ -118,11 +120,20 @@ class SensorDrift(Effect):
         return terms
 
     def _nuisance(self, terms: Terms, rs, t: np.ndarray, spans: np.ndarray) -> None:
-        """Per-run columns in every channel (in place): the run's level and a free line on each unsettled end."""
+        """Per-run columns in every channel (in place): level, ends and stroke-locked waveform.
+
+        The run's level, a free line on each unsettled end and, with ``stroke`` gait harmonics,
+        the run's own stroke-locked waveform (the base model's misfit that repeats every stroke).
+        """
         moving = rs.fit
         start = moving & (rs.time_s < spans[:, :1])
         end = moving & (rs.time_s > spans[:, 1:])
         parts = {"level": moving, "start": start, "start_t": start * t, "end": end, "end_t": end * t}
+        freq = np.where(np.isfinite(rs.freq) & (rs.freq > 0), rs.freq, 0.0)[:, None]
+        for j in range(1, self.stroke + 1):
+            w = 2 * np.pi * j * freq * rs.time_s
+            parts[f"sin{j}"] = moving * np.sin(w)
+            parts[f"cos{j}"] = moving * np.cos(w)
         for c in range(6):
             for k, v in parts.items():
                 col = np.zeros(t.shape + (6,))
