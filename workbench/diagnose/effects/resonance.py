@@ -56,34 +56,50 @@ def resonance_filter(w: np.ndarray, dt_s: float, f_n_hz: float, zeta: float, axi
     return y
 
 
-def _derivatives(w: np.ndarray, dt_s: float, axis: int) -> tuple[np.ndarray, np.ndarray]:
-    """First and second time derivatives of ``w`` along ``axis`` (spectral, after the end-to-end line is taken out).
+def _spectrum(w: np.ndarray, dt_s: float, axis: int):
+    """The spectrum of ``w`` less its end-to-end line along ``axis``, zero-padded to a fast length.
 
     The line through the first and last samples is taken out first (its second derivative is
-    zero, its first a constant added back), so the wrap-around of the transform joins no step.
-    The readings are low-passed far below the tick rate, so the spectral derivative is exact there.
+    zero, its first a constant added back), so the wrap-around of the transform joins no step;
+    the padding joins zeros to zeros. The readings are low-passed far below the tick rate, so
+    spectral derivatives are exact there.
     """
+    from scipy import fft
+
     ax = axis % w.ndim
     n = w.shape[ax]
     shape = [1] * w.ndim
     shape[ax] = n
     first, last = np.take(w, [0], axis=ax), np.take(w, [n - 1], axis=ax)
     line = first + (last - first) * (np.arange(n) / max(n - 1, 1)).reshape(shape)
-    spec = np.fft.rfft(w - line, axis=ax)
-    om = 2 * np.pi * np.fft.rfftfreq(n, dt_s)
+    nf = fft.next_fast_len(n, real=True)
+    spec = fft.rfft(w - line, n=nf, axis=ax)
+    om = 2 * np.pi * np.fft.rfftfreq(nf, dt_s)
     shape[ax] = len(om)
-    om = om.reshape(shape)
-    d1 = np.fft.irfft(spec * (1j * om), n=n, axis=ax) + (last - first) / (max(n - 1, 1) * dt_s)
-    d2 = np.fft.irfft(spec * (-om * om), n=n, axis=ax)
-    return d1, d2
+    slope = (last - first) / (max(n - 1, 1) * dt_s)
+    return spec, om.reshape(shape), line, slope, nf, ax
+
+
+def _back(spec: np.ndarray, nf: int, n: int, ax: int) -> np.ndarray:
+    from scipy import fft
+
+    return np.take(fft.irfft(spec, n=nf, axis=ax), np.arange(n), axis=ax)
+
+
+def _derivatives(w: np.ndarray, dt_s: float, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """First and second time derivatives of ``w`` along ``axis`` (spectral, :func:`_spectrum`)."""
+    spec, om, _line, slope, nf, ax = _spectrum(w, dt_s, axis)
+    n = w.shape[ax]
+    return _back(spec * (1j * om), nf, n, ax) + slope, _back(spec * (-om * om), nf, n, ax)
 
 
 def inverse_mode(w: np.ndarray, dt_s: float, f_n_hz: float, zeta: float, axis: int = -2) -> np.ndarray:
     """``w`` through the mode's inverse, 1 + 2 zeta s / wn + s^2 / wn^2, along ``axis`` (spectral derivatives)."""
     w = np.asarray(w, float)
     wn = 2 * np.pi * f_n_hz
-    d1, d2 = _derivatives(w, dt_s, axis)
-    return w + (2 * zeta / wn) * d1 + d2 / (wn * wn)
+    spec, om, line, slope, nf, ax = _spectrum(w, dt_s, axis)
+    x = om / wn
+    return _back(spec * (1 - x * x + 2j * zeta * x), nf, w.shape[ax], ax) + line + (2 * zeta / wn) * slope
 
 
 #: how the mode is fitted (option ``form``): ``equation`` compares the reading through the inverse mode
