@@ -24,7 +24,7 @@ import numpy as np
 import planting  # noqa: E402
 import pytest
 
-CHANNEL, RATE = "tx_nm", -0.0004          # N m per s: 0.4 mN m/s, a torque drift opposite in sign to the battery's
+CHANNEL, RATE = "tx_nm", -0.0006          # N m per s: 0.6 mN m/s, a torque drift opposite in sign to the battery's
 SETS = 8
 
 MODEL = Path(__file__).resolve().parents[2] / "datasets" / "models" / "fed-lstm"
