@@ -17,12 +17,16 @@ projected out, so its least-squares rate is that of a joint fit with the nuisanc
 with ``rate * t`` (``Terms.predict``), the formula, and the fits take the rest of it (each run's
 level, its ends) off the readings at the current rate (``Terms.fit_offset``), so that no other
 effect takes a drift's level for its own (a weight fitted 11 mN of a 2 mN/s drift's level
-before). The held-out *test* needs the nuisance
-itself: a 2 s block's share of the column times the run's level (tens of mN) swamps the drift's
-gain in that block although it cancels over the run. So the selection judges the drift under
-``judge`` (:meth:`SensorDrift.judged_as`): the nuisance as per-run columns in each fitted
-channel, fitted on every run, held-out runs too, and the same nuisance without the drift
-(:meth:`SensorDrift.null_variants`) as the null its gain is measured against.
+before). The held-out *test* needs the nuisance itself: a 2 s block's share of the column times
+the run's level (tens of mN) swamps the drift's gain in that block although it cancels over the
+run. So the selection judges the drift under ``judge`` (:meth:`SensorDrift.judged_as`): the
+nuisance as per-run columns in each fitted channel (the run's level, a free line on each
+unsettled end and the run's stroke-locked waveform, ``stroke`` gait harmonics), fitted on every
+run, held-out runs too, and the same nuisance without the drift (:meth:`SensorDrift.null_variants`)
+as the null its gain is measured against. The test's noise is then what is left of the base
+model's misfit beyond each run's level, ends and stroke-locked waveform: its own slow trends
+within the settled span stay in it (and in the estimate: about -0.06 mN m/s in tx, -0.05 mN/s in
+fz for the FED-LSTM on the rich tunnel).
 
 Which ends are unsettled is read from each run's own residual (measured minus the prediction the
 drift is first tried beside), not from a constant: the residual's steady waveform (mean, line and
