@@ -248,3 +248,20 @@ def table(results: list[dict], title: str) -> str:
               f"{within}/{len(perr)}; planted held-out error removed (median over cases): "
               f"{np.median(shares):.0%}" if shares else "", ""]
     return "\n".join(lines)
+
+
+def clean_and_planted_with_one_effect(root: Path, model_folder: Path, effect: str, plant, n_sets: int) -> dict:
+    """The clean rich-truth campaign and a copy with ``plant``, each diagnosed against the learned model in
+    ``model_folder`` with ``effect`` the only candidate (the learned-base tests' shared setup)."""
+    import dataclasses
+
+    from workbench.diagnose.loop import DiagnoseSettings, LibrarySettings, diagnose
+    from workbench.hydro.legmodel import load_leg_model
+
+    bench = Bench(root, n_sets=n_sets)
+    model = load_leg_model(str(model_folder))
+    s = dataclasses.replace(DiagnoseSettings(), library=LibrarySettings(effects=(effect,)))
+    clean = bench.new_campaign()
+    planted = P.copy_campaign(clean, bench.root / "planted", [plant])
+    return {name: diagnose(bench.frame(folder), model, "lstm", settings=s)
+            for name, folder in (("clean", clean), ("planted", planted))}

@@ -16,12 +16,10 @@ fast tests check the settled span and the fitted column on synthetic residuals.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import battery  # noqa: E402  (tests/diagnose/battery.py: a broken import must fail, not skip)
 import numpy as np
-import planting  # noqa: E402
 import pytest
 
 CHANNEL, RATE = "tx_nm", -0.0006          # N m per s: 0.6 mN m/s, a torque drift opposite in sign to the battery's
@@ -109,17 +107,7 @@ def test_the_drift_column_carries_no_run_level_and_nothing_on_the_unsettled_ends
 def runs(tmp_path_factory):
     if not (MODEL / "model.json").is_file():
         pytest.skip("the trained FED-LSTM (datasets/models/fed-lstm) is made by dvc repro")
-    from workbench.diagnose.loop import DiagnoseSettings, LibrarySettings, diagnose
-    from workbench.hydro.legmodel import load_leg_model
-
-    bench = battery.Bench(tmp_path_factory.mktemp("drift-lstm"), n_sets=SETS)
-    model = load_leg_model(str(MODEL))
-    s = DiagnoseSettings()
-    s = dataclasses.replace(s, library=LibrarySettings(effects=("sensor_drift",)))
-    clean = bench.new_campaign()
-    planted = planting.copy_campaign(clean, bench.root / "planted", [torque_drift(CHANNEL, RATE)])
-    return {name: diagnose(bench.frame(folder), model, "lstm", settings=s)
-            for name, folder in (("clean", clean), ("planted", planted))}
+    return battery.clean_and_planted_with_one_effect(tmp_path_factory.mktemp("drift-lstm"), MODEL, "sensor_drift", torque_drift(CHANNEL, RATE), SETS)
 
 
 @pytest.mark.slow

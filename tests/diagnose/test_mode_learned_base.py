@@ -15,7 +15,6 @@ fitted and judged with a learned base, not the rest of the library.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -58,17 +57,7 @@ def zoh_mode(f_n_hz: float, zeta: float):
 def runs(tmp_path_factory):
     if not (MODEL / "model.json").is_file():
         pytest.skip("the trained FED-LSTM (datasets/models/fed-lstm) is made by dvc repro")
-    from workbench.diagnose.loop import DiagnoseSettings, LibrarySettings, diagnose
-    from workbench.hydro.legmodel import load_leg_model
-
-    bench = battery.Bench(tmp_path_factory.mktemp("mode-lstm"), n_sets=SETS)
-    model = load_leg_model(str(MODEL))
-    s = DiagnoseSettings()
-    s = dataclasses.replace(s, library=LibrarySettings(effects=("structural_resonance",)))
-    clean = bench.new_campaign()
-    planted = planting.copy_campaign(clean, bench.root / "planted", [zoh_mode(F_N_HZ, ZETA)])
-    return {name: diagnose(bench.frame(folder), model, "lstm", settings=s)
-            for name, folder in (("clean", clean), ("planted", planted))}
+    return battery.clean_and_planted_with_one_effect(tmp_path_factory.mktemp("mode-lstm"), MODEL, "structural_resonance", zoh_mode(F_N_HZ, ZETA), SETS)
 
 
 def test_a_mount_mode_is_measured_with_a_learned_base(runs):
