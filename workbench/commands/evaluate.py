@@ -79,71 +79,106 @@ def load_model_spec(spec: str, tracking_uri: str | None = None):
 def evaluate_to_files(*, data, split_path, out, figures, model, also, options, mlflow_log=True,
                       dvc_stage=None, tracking_uri=None) -> list[str]:
     """Load data, split and models; score; write the metrics JSON and figures atomically; log to MLflow."""
+    from workbench.atomic import write_json
+    from workbench.learn.evaluate import evaluate_models
+    from workbench.learn.metrics import mse_ratios
+    from workbench.learn.windows import read_table
+
+    split = _read_split(split_path)
+    table = read_table(data)
+    models = _load_models(model, also, tracking_uri)
+    sources = _model_sources(models)
+    metrics, result = evaluate_models(table, split, models)
+    write_json(out, metrics)
+    ratios = mse_ratios(metrics)
+    lines = _summary_lines(out, metrics, result, sources, ratios)
+    written = []
+    if figures:
+        written = _write_figures(figures, table, result, metrics, options)
+        lines.append(f"figures: {', '.join(str(p) for p in written)}")
+    if mlflow_log:
+        lines.append(_log_evaluation(metrics, ratios, models["lstm"], table, out, written, options, dvc_stage,
+                                     tracking_uri))
+    return lines
+
+
+def _read_split(split_path):
+    """The ``ParameterSplit`` recorded in split.json; a missing or malformed file is a ``ContractError``."""
     import json
     from pathlib import Path
 
-    from workbench.atomic import atomic_dir, write_json
     from workbench.errors import ContractError
-    from workbench.hydro.legmodel import load_leg_model
-    from workbench.learn.evaluate import evaluate_models, prediction_figures
-    from workbench.learn.metrics import mse_ratios
     from workbench.learn.split import ParameterSplit
-    from workbench.learn.windows import read_table
 
     sp = Path(split_path)
     if not sp.is_file():
         raise ContractError("split file not found", path=sp, hint="workbench train writes <model folder>/split.json")
     try:
-        split = ParameterSplit.from_dict(json.loads(sp.read_text(encoding="utf-8")), str(sp))
+        return ParameterSplit.from_dict(json.loads(sp.read_text(encoding="utf-8")), str(sp))
     except (json.JSONDecodeError, KeyError, TypeError) as exc:
         raise ContractError(f"not a split record ({type(exc).__name__})", path=sp) from exc
-    table = read_table(data)
+
+
+def _load_models(model, also, tracking_uri) -> dict:
+    """The models to score, by name: the EF, the learned model ``lstm`` and each ``--also NAME=SPEC``."""
+    from workbench.errors import ContractError
+    from workbench.hydro.legmodel import load_leg_model
+
     models = {"ef": load_leg_model("ef"), "lstm": load_model_spec(model, tracking_uri)}
     for item in also:
         name, _, spec = item.partition("=")
         if not spec:
             raise ContractError(f"--also {item!r} is not NAME=SPEC")
         models[name] = load_model_spec(spec, tracking_uri)
+    return models
+
+
+def _model_sources(models) -> list[str]:
+    """Which registry version or folder each learned model came from (models with neither are left out)."""
     sources = []
-    for name, m in models.items():  # which registry version or folder each learned model came from
+    for name, m in models.items():
         d = m.describe()
         if d.get("model_version"):
             sources.append(f"{name}: {d.get('model_uri')} version {d['model_version']}")
         elif d.get("model_path") or d.get("model_uri"):
             sources.append(f"{name}: {d.get('model_path') or d.get('model_uri')}")
-    metrics, result = evaluate_models(table, split, models)
-    write_json(out, metrics)
+    return sources
+
+
+def _summary_lines(out, metrics, result, sources, ratios) -> list[str]:
+    """The printed summary: what was written, the models' sources, MSE ratios and EF R^2 per flow speed."""
     lines = [f"wrote {out}: {metrics['lstm']['n_runs']} held-out runs, {metrics['lstm']['n_ticks']} ticks per model "
              f"(first {result['skip']} ticks of each run skipped for all models)"]
     if sources:
         lines.append("models: " + "; ".join(sources))
-    ratios = mse_ratios(metrics)
     for s, r in ratios.items():
         r2 = metrics["ef"]["r2_by_flow_speed"][s]
         lines.append(f"  flow {s} m/s: MSE LSTM/EF " + "  ".join(f"{c} {v:.2f}" for c, v in r.items()) +
                      f"   EF R^2 fy {r2['fy_n']:.2f} fz {r2['fz_n']:.2f}")
     lines.append("  all speeds: EF R^2 " + "  ".join(f"{c} {metrics['ef']['r2'][c]:.2f}" for c in ("fy_n", "fz_n",
                                                                                                     "tx_nm")))
-    written = []
-    if figures:
-        from workbench.learn.figures import mse_boxplot
-
-        figs = prediction_figures(table, result, metrics, options.figure_sets, options.figure_flow_speed_mps,
-                                  options.figure_cycles)
-        names = [f"prediction_{chr(ord('a') + i)}.png" for i in range(len(figs))]
-        figs.append(mse_boxplot(metrics, options.boxplot_channels))
-        names.append("mse_boxplot.png")
-        folder = Path(figures)
-        # the figures are one set, swapped in together; no marker file: DVC draws every file of this plots folder
-        with atomic_dir(folder, verb="evaluate", marker=False) as tmp:
-            for fig, name in zip(figs, names, strict=False):
-                fig.savefig(tmp / name, dpi=110, format="png")
-        written = [folder / name for name in names[:len(figs)]]
-        lines.append(f"figures: {', '.join(str(p) for p in written)}")
-    if mlflow_log:
-        lines.append(_log_evaluation(metrics, ratios, models["lstm"], table, out, written, options, dvc_stage,
-                                     tracking_uri))
     return lines
+
+
+def _write_figures(figures, table, result, metrics, options) -> list:
+    """Draw the prediction curves and the MSE box plot and swap them into ``figures`` as one set; their paths."""
+    from pathlib import Path
+
+    from workbench.atomic import atomic_dir
+    from workbench.learn.evaluate import prediction_figures
+    from workbench.learn.figures import mse_boxplot
+
+    figs = prediction_figures(table, result, metrics, options.figure_sets, options.figure_flow_speed_mps,
+                              options.figure_cycles)
+    names = [f"prediction_{chr(ord('a') + i)}.png" for i in range(len(figs))]
+    figs.append(mse_boxplot(metrics, options.boxplot_channels))
+    names.append("mse_boxplot.png")
+    folder = Path(figures)
+    # the figures are one set, swapped in together; no marker file: DVC draws every file of this plots folder
+    with atomic_dir(folder, verb="evaluate", marker=False) as tmp:
+        for fig, name in zip(figs, names, strict=False):
+            fig.savefig(tmp / name, dpi=110, format="png")
+    return [folder / name for name in names[:len(figs)]]
 
 
 def _log_evaluation(metrics, ratios, lstm, table, out, figures, options, dvc_stage, tracking_uri=None) -> str:
