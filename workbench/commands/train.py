@@ -66,6 +66,26 @@ def run(args) -> int:
     from workbench.learn.config import cli_config
 
     cfg = cli_config(args)
+    over = _overrides(args)
+    cfg = cfg.with_overrides(over) if over else cfg
+    info(f"train: {cfg.model.variant} {cfg.model.hidden_size}x{cfg.model.num_layers}, seq_len {cfg.data.seq_len}, "
+         f"data {', '.join(cfg.data.paths)}")
+    from workbench.learn.train import train
+    if cfg.model_dir:
+        from workbench.atomic import check_replaceable
+
+        check_replaceable(cfg.model_dir, "train")  # a wrong --out is refused before the training, not after
+
+    metrics, objects = train(cfg, report=None if args.quiet else info)
+    if cfg.model_dir:
+        write_model_card(cfg.model_dir, objects["card"])
+    _report_training(metrics)
+    _report_records(cfg, objects)
+    return 0
+
+
+def _overrides(args) -> dict:
+    """The settings the command line overrides, as dotted keys of the train section."""
     over = {}
     if args.out:
         over["model_dir"] = args.out
@@ -79,21 +99,16 @@ def run(args) -> int:
         over["tracking.register"] = True
     if args.run_name:
         over["tracking.run_name"] = args.run_name
-    cfg = cfg.with_overrides(over) if over else cfg
-    info(f"train: {cfg.model.variant} {cfg.model.hidden_size}x{cfg.model.num_layers}, seq_len {cfg.data.seq_len}, "
-         f"data {', '.join(cfg.data.paths)}")
-    from workbench.learn.train import train
-    if cfg.model_dir:
-        from workbench.atomic import check_replaceable
+    return over
 
-        check_replaceable(cfg.model_dir, "train")  # a wrong --out is refused before the training, not after
 
-    metrics, objects = train(cfg, report=None if args.quiet else info)
-    if cfg.model_dir:
-        write_model_card(cfg.model_dir, objects["card"])
-    s = metrics["summary"]
+def _report_training(metrics) -> None:
+    """Print why training stopped, the best epoch, the speed and the held-out test scores."""
     import torch
 
+    from workbench.console import info
+
+    s = metrics["summary"]
     info(f"stopped: {s['stop_detail']}")
     info(f"best epoch {s['best_epoch']}/{s['epochs']}: val loss {s['best_val_loss']:.4f}; "
          f"{s['train_windows_per_s']:,.0f} training windows/s on {torch.get_num_threads()} torch thread(s)")
@@ -101,6 +116,12 @@ def run(args) -> int:
         ratios = "  ".join(f"{c} {s[f'test_mse_ratio_{c}']:.2f}" for c in ("fy_n", "fz_n", "tx_nm"))
         info(f"held-out test sets: MSE LSTM/EF {ratios}; R^2 " +
              "  ".join(f"{c} {metrics['test_r2'][c]:.2f}" for c in ("fy_n", "fz_n", "tx_nm")))
+
+
+def _report_records(cfg, objects) -> None:
+    """Print where the model went: its folder, its MLflow run and model, its registered version."""
+    from workbench.console import info
+
     if cfg.model_dir:
         info(f"model folder: {cfg.model_dir}")
     if "run_id" in objects:
@@ -112,7 +133,6 @@ def run(args) -> int:
         uri = f"models:/{cfg.tracking.registered_model}@{cfg.tracking.alias}"
         info(f"registered {cfg.tracking.registered_model} version {objects['model_version']} "
              f"as @{cfg.tracking.alias} (run {objects['run_id']}); mlflow.pyfunc.load_model({uri!r}) loads it")
-    return 0
 
 
 def write_model_card(target, card: dict[str, bytes]):
