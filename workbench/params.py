@@ -319,26 +319,51 @@ def _coerce_literal(value: Any, tp: Any, where: str, path) -> Any:
 
 
 def _coerce_scalar(value: Any, tp: type, where: str, path) -> Any:
+    """``value`` as the scalar type ``tp`` (bool, int, float or str), else a ParamsError naming what it got."""
+    out = _scalar(value, tp)
+    if out is None:
+        raise _bad(value, tp, where, path)
+    return out
+
+
+def _scalar(value: Any, tp: type) -> Any:
+    """``value`` read as ``tp``, None when it cannot be (YAML's true/false is not a number)."""
     if tp is bool or tp is str:
-        if isinstance(value, tp):
-            return value
-        if tp is str and isinstance(value, _dt.date):  # YAML reads 2025-03-14 as a date
-            return value.isoformat()
-    elif isinstance(value, bool):
-        pass  # true/false is not a number
-    elif tp is int:
-        if isinstance(value, int) or (isinstance(value, float) and value.is_integer()):
-            return int(value)
-    elif isinstance(value, (int, float)):
+        return _flag_or_text(value, tp)
+    if isinstance(value, bool):
+        return None
+    if tp is int:
+        return _integer(value)
+    return _number(value)
+
+
+def _flag_or_text(value: Any, tp: type) -> Any:
+    """A bool or str as itself; a date as its ISO text when a str is wanted; else None."""
+    if isinstance(value, tp):
+        return value
+    if tp is str and isinstance(value, _dt.date):  # YAML reads 2025-03-14 as a date
+        return value.isoformat()
+    return None
+
+
+def _integer(value: Any) -> int | None:
+    """An int, or a float with no fractional part, as an int; else None."""
+    if isinstance(value, int) or (isinstance(value, float) and value.is_integer()):
+        return int(value)
+    return None
+
+
+def _number(value: Any) -> float | None:
+    """An int or float as a float, a numeric string too (YAML 1.1 reads 1e-5, no dot, as a string); else None."""
+    if isinstance(value, (int, float)):
         return float(value)
-    elif isinstance(value, str):  # YAML 1.1 reads 1e-5 (no dot) as a string
+    if isinstance(value, str):
         try:
             out = float(value)
         except ValueError:
-            out = math.nan
-        if not math.isnan(out):
-            return out
-    raise _bad(value, tp, where, path)
+            return None
+        return None if math.isnan(out) else out
+    return None
 
 
 def _coerce_sequence(value: Any, tp: Any, where: str, path) -> Any:
