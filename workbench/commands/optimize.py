@@ -92,27 +92,15 @@ def _csv(rows: list[dict]) -> str:
 def run(args) -> int:
     """Load settings, robot and model; optimise; write the results atomically; log to MLflow."""
     import sys
-    from dataclasses import asdict
     from pathlib import Path
 
-    from workbench.atomic import atomic_files, json_text
     from workbench.console import info
-    from workbench.errors import ParamsError, SettingError
-    from workbench.gait.config import load_config
     from workbench.gait.export import model_source, model_source_line
     from workbench.gait.optimize import optimize_task
     from workbench.hydro.legmodel import load_leg_model
     from workbench.hydro.robot import load_robot
 
-    cfg = load_config(args.params)
-    try:
-        cfg = cfg.with_overrides(pop_size=args.pop, n_gen=args.gens, seed=args.seed)
-    except ParamsError as exc:  # the file's value was fine, the command line's is not: name the options
-        raise SettingError(exc.fault, where="--pop/--gens/--seed", hint=exc.hint) from None
-    try:
-        cfg = cfg.with_workers(args.workers)
-    except ParamsError as exc:
-        raise SettingError(exc.fault, where="--workers", hint=exc.hint) from None
+    cfg = _settings(args)
     ts = cfg.task(args.task)
     robot = load_robot(args.robot or cfg.robot, drag_json=args.drag or cfg.drag_json)
     label = _label(args.label, args.model)
@@ -142,6 +130,34 @@ def run(args) -> int:
     if source:  # which registry version or folder the results come from (issue 15.1)
         outcome.gait_doc["model_source"] = source
         m["model_source"] = source
+    _warn_unconverged(m)
+    folder, gaits_path, metrics_path = _write_results(Path(args.out), f"{args.task}-{label}", cfg, outcome)
+    _print_summary(m, gaits_path, metrics_path, folder)
+    if cfg.tracking.enabled and not args.no_mlflow:
+        _log_to_mlflow(args, cfg, outcome, workers, folder, [gaits_path, metrics_path], source, model, robot)
+    return 0
+
+
+def _settings(args):
+    """The gait settings of ``--params`` with the command line's overrides; a bad option is a ``SettingError``."""
+    from workbench.errors import ParamsError, SettingError
+    from workbench.gait.config import load_config
+
+    cfg = load_config(args.params)
+    try:
+        cfg = cfg.with_overrides(pop_size=args.pop, n_gen=args.gens, seed=args.seed)
+    except ParamsError as exc:  # the file's value was fine, the command line's is not: name the options
+        raise SettingError(exc.fault, where="--pop/--gens/--seed", hint=exc.hint) from None
+    try:
+        return cfg.with_workers(args.workers)
+    except ParamsError as exc:
+        raise SettingError(exc.fault, where="--workers", hint=exc.hint) from None
+
+
+def _warn_unconverged(m: dict) -> None:
+    """Warn about simulated and retained gaits that did not converge."""
+    from workbench.console import info
+
     if m["unconverged_gaits"]:
         info(f"warning: {m['unconverged_gaits']} of {m['simulated_gaits']} simulated gait(s) did not converge "
              f"(penalised: ranked below every converged gait; counted in the gait file and MLflow)")
@@ -149,14 +165,23 @@ def run(args) -> int:
         info(f"warning: {m['retained_unconverged']} retained gait(s) did not converge (marked converged: false "
              f"in the gait file; the virtual pool refuses them)")
 
-    out = Path(args.out)
-    stem = f"{args.task}-{label}"
+
+def _population_rows(cfg, result) -> list[dict]:
+    """One row per evaluated gait of the final population: its variables, objectives, score and convergence."""
+    return [dict(zip(cfg.space.variables, map(float, x), strict=True)) | {"f1": float(f[0]), "f2": float(f[1]),
+            "f3": float(f[2]), "score": float(s), "converged": bool(ok)}
+            for x, f, s, ok in zip(result.x, result.f, result.s, result.converged, strict=True)]
+
+
+def _write_results(out, stem: str, cfg, outcome):
+    """Write the results folder ``out/stem`` and the gait and metrics files beside it as one set; their paths."""
+    from dataclasses import asdict
+
+    from workbench.atomic import atomic_files, json_text
+
     folder = out / stem
     history = [asdict(g) for g in outcome.result.history]
-    population = [dict(zip(cfg.space.variables, map(float, x), strict=True)) | {"f1": float(f[0]), "f2": float(f[1]),
-                  "f3": float(f[2]), "score": float(s), "converged": bool(ok)}
-                  for x, f, s, ok in zip(outcome.result.x, outcome.result.f, outcome.result.s,
-                                         outcome.result.converged, strict=True)]
+    population = _population_rows(cfg, outcome.result)
     metrics_path = out / f"{stem}.metrics.json"
     gaits_path = out / f"{stem}.json"
     # the folder and the two files beside it are one set: all three from this run or all from the last
@@ -169,28 +194,37 @@ def run(args) -> int:
         (part / "population.csv").write_text(_csv(population), encoding="utf-8")
         for name, png in outcome.pngs.items():
             (part / name).write_bytes(png)
-        tmp[metrics_path.name].write_text(json_text(m), encoding="utf-8")
+        tmp[metrics_path.name].write_text(json_text(outcome.metrics), encoding="utf-8")
         tmp[gaits_path.name].write_text(json_text(outcome.gait_doc), encoding="utf-8")
+    return folder, gaits_path, metrics_path
+
+
+def _print_summary(m: dict, gaits_path, metrics_path, folder) -> None:
+    """Print the best gait's score and objectives, the cost, how the best were checked, and what was written."""
+    from workbench.console import info
+
     check = (f"re-simulated objectives within {m['resim_max_rel_diff']:.1e}" if m.get("resim_max_rel_diff") is not None
              else f"best {m['verified_direct']} re-swum with the direct rollout in {m['verify_seconds']:.1f} s "
                   f"(tabulated S within {m['verify_max_rel_diff_score']:.2%})")
     info(f"best S {m['best_score']:.4f} (f1 {m['best_f1']:.4g}, f2 {m['best_f2']:.4g}, f3 {m['best_f3']:.4g}); "
          f"{m['evaluations']} evaluations in {m['seconds']:.1f} s; {check}")
     info(f"wrote {gaits_path}, {metrics_path} and {folder}/")
-    if cfg.tracking.enabled and not args.no_mlflow:
-        from workbench.gait.tracking import log_outcome
 
-        try:
-            settings = cfg.record() | {"task": args.task, "model": args.model, "workers_used": workers}
-            run_id = log_outcome(outcome, settings, folder,
-                                 [gaits_path, metrics_path], model_spec=args.model, model_source=source,
-                                 tracking_uri=args.tracking_uri or cfg.tracking.tracking_uri,
-                                 experiment=cfg.tracking.experiment,
-                                 campaigns=_campaigns(model, robot.drag_source))
-            info(f"MLflow run {run_id} (experiment '{cfg.tracking.experiment}')")
-        except Exception as exc:  # noqa: BLE001 - the results are on disk; tracking is the side channel
-            info(f"warning: MLflow logging failed ({type(exc).__name__}: {str(exc).splitlines()[0][:160]})")
-    return 0
+
+def _log_to_mlflow(args, cfg, outcome, workers, folder, files, source, model, robot) -> None:
+    """Log the outcome to MLflow; a failure is a printed warning (the results are already on disk)."""
+    from workbench.console import info
+    from workbench.gait.tracking import log_outcome
+
+    try:
+        settings = cfg.record() | {"task": args.task, "model": args.model, "workers_used": workers}
+        run_id = log_outcome(outcome, settings, folder, files, model_spec=args.model, model_source=source,
+                             tracking_uri=args.tracking_uri or cfg.tracking.tracking_uri,
+                             experiment=cfg.tracking.experiment,
+                             campaigns=_campaigns(model, robot.drag_source))
+        info(f"MLflow run {run_id} (experiment '{cfg.tracking.experiment}')")
+    except Exception as exc:  # noqa: BLE001 - the results are on disk; tracking is the side channel
+        info(f"warning: MLflow logging failed ({type(exc).__name__}: {str(exc).splitlines()[0][:160]})")
 
 
 def _label(label: str | None, spec: str) -> str:
