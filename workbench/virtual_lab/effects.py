@@ -422,32 +422,12 @@ def parse_effect(spec: str | EffectSpec | Mapping) -> Effect:
     """Build an effect from ``"name:key=value,..."``, an :class:`EffectSpec` or ``{"name":..., "params":...}``."""
     if isinstance(spec, Effect):
         return spec
-    if isinstance(spec, str):
-        name, _, rest = spec.strip().partition(":")
-        given: dict[str, object] = {}
-        for item in filter(None, (s.strip() for s in rest.split(","))):
-            key, eq, val = item.partition("=")
-            if not eq:
-                raise ParamsError(f"effect spec {spec!r}: expected key=value, got {item!r}",
-                                     hint="e.g. servo_lag:tau_s=0.04")
-            given[key.strip()] = val.strip()
-    elif isinstance(spec, EffectSpec):
-        name, given = spec.name, dict(spec.params)
-    elif isinstance(spec, Mapping):
-        name, given = str(spec.get("name", "")), dict(spec.get("params") or {})
-    else:
-        raise ParamsError(f"not an effect spec: {spec!r}")
+    name, given = _spec_parts(spec)
     name = name.strip()
     if name not in REGISTRY:
         raise ParamsError(f"unknown effect {name!r}", hint=f"known: {', '.join(sorted(REGISTRY))}")
     cls = REGISTRY[name]
-    values: dict[str, float | str] = {}
-    for key, raw in given.items():
-        canon = _canonical_key(name, key)
-        if canon is None:
-            known = ", ".join(cls.params)
-            raise ParamsError(f"effect {name}: unknown parameter {key!r}", hint=f"parameters: {known}")
-        values[canon] = _value(name, canon, raw)
+    values = _given_values(name, given)
     if not values and hasattr(cls, "DEFAULTS"):
         values = dict(cls.DEFAULTS)
     for key, p in cls.params.items():
@@ -455,6 +435,42 @@ def parse_effect(spec: str | EffectSpec | Mapping) -> Effect:
             values.setdefault(key, p.default)
     _check(name, values)
     return cls(values)
+
+
+def _spec_parts(spec: str | EffectSpec | Mapping) -> tuple[str, dict[str, object]]:
+    """The effect's name (unstripped) and its given parameters, from any of the spec forms."""
+    if isinstance(spec, str):
+        return _spec_text_parts(spec)
+    if isinstance(spec, EffectSpec):
+        return spec.name, dict(spec.params)
+    if isinstance(spec, Mapping):
+        return str(spec.get("name", "")), dict(spec.get("params") or {})
+    raise ParamsError(f"not an effect spec: {spec!r}")
+
+
+def _spec_text_parts(spec: str) -> tuple[str, dict[str, object]]:
+    """Name and ``key=value`` pairs (as text) of ``"name:key=value,..."``."""
+    name, _, rest = spec.strip().partition(":")
+    given: dict[str, object] = {}
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        key, eq, val = item.partition("=")
+        if not eq:
+            raise ParamsError(f"effect spec {spec!r}: expected key=value, got {item!r}",
+                              hint="e.g. servo_lag:tau_s=0.04")
+        given[key.strip()] = val.strip()
+    return name, given
+
+
+def _given_values(name: str, given: Mapping[str, object]) -> dict[str, float | str]:
+    """The given parameters under their canonical keys, checked and converted (unknown keys refused)."""
+    values: dict[str, float | str] = {}
+    for key, raw in given.items():
+        canon = _canonical_key(name, key)
+        if canon is None:
+            known = ", ".join(REGISTRY[name].params)
+            raise ParamsError(f"effect {name}: unknown parameter {key!r}", hint=f"parameters: {known}")
+        values[canon] = _value(name, canon, raw)
+    return values
 
 
 def _check(name: str, values: dict) -> None:
