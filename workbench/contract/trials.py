@@ -11,6 +11,7 @@ folder's ``[camera]`` references apply.
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 import tomllib
@@ -147,28 +148,46 @@ def reference_fault(px: np.ndarray, m: np.ndarray) -> str | None:
     if len(px) != len(m) or len(px) < 4:
         return f"need at least four reference point pairs, got {len(px)} pixel and {len(m)} metre points"
     for name, pts in (("reference_px", px), ("reference_m", m)):
-        spread = float(np.max(np.linalg.norm(pts[:, None] - pts[None], axis=-1)))
-        if spread <= 0:
-            return f"{name} points all coincide"
-        n = len(pts)
-        for i in range(n):
-            for j in range(i + 1, n):
-                if np.linalg.norm(pts[i] - pts[j]) < 1e-3 * spread:
-                    return f"{name} points {i + 1} and {j + 1} coincide"
+        fault = _coincidence_fault(name, pts)
+        if fault:
+            return fault
+    return _orientation_fault(px, m)
+
+
+def _spread(pts: np.ndarray) -> float:
+    """The largest distance between two of the points."""
+    return float(np.max(np.linalg.norm(pts[:, None] - pts[None], axis=-1)))
+
+
+def _coincidence_fault(name: str, pts: np.ndarray) -> str | None:
+    """Why the points of one space coincide (all, or a pair closer than 1e-3 of their spread), or None."""
+    spread = _spread(pts)
+    if spread <= 0:
+        return f"{name} points all coincide"
+    for i, j in itertools.combinations(range(len(pts)), 2):
+        if np.linalg.norm(pts[i] - pts[j]) < 1e-3 * spread:
+            return f"{name} points {i + 1} and {j + 1} coincide"
+    return None
+
+
+def _turn_area(pts: np.ndarray, i: int, j: int, k: int, spread: float) -> float:
+    """The signed area spanned by points i, j, k (its sign: their turning direction), over the spread squared."""
+    d1, d2 = pts[j] - pts[i], pts[k] - pts[i]
+    return (d1[0] * d2[1] - d1[1] * d2[0]) / spread**2
+
+
+def _orientation_fault(px: np.ndarray, m: np.ndarray) -> str | None:
+    """Why the triples are collinear or turn inconsistently between pixel and metre space, or None."""
+    spreads = (_spread(px), _spread(m))
     signs = []
     n = len(px)
-    for i in range(n):
-        for j in range(i + 1, n):
-            for k in range(j + 1, n):
-                areas = []
-                for pts in (px, m):
-                    d1, d2 = pts[j] - pts[i], pts[k] - pts[i]
-                    spread = float(np.max(np.linalg.norm(pts[:, None] - pts[None], axis=-1)))
-                    areas.append((d1[0] * d2[1] - d1[1] * d2[0]) / spread**2)
-                if n == 4 and min(abs(a) for a in areas) < 2e-3:
-                    return f"reference points {i + 1}, {j + 1}, {k + 1} are (nearly) collinear"
-                if min(abs(a) for a in areas) > 2e-3:
-                    signs.append(np.sign(areas[0]) * np.sign(areas[1]))
+    for i, j, k in itertools.combinations(range(n), 3):
+        areas = [_turn_area(pts, i, j, k, spread) for pts, spread in zip((px, m), spreads, strict=True)]
+        smallest = min(abs(a) for a in areas)
+        if n == 4 and smallest < 2e-3:
+            return f"reference points {i + 1}, {j + 1}, {k + 1} are (nearly) collinear"
+        if smallest > 2e-3:
+            signs.append(np.sign(areas[0]) * np.sign(areas[1]))
     if not signs:
         return "reference points are all (nearly) collinear"
     if not (all(s > 0 for s in signs) or all(s < 0 for s in signs)):
@@ -272,30 +291,56 @@ def check_trials(root: str | Path) -> tuple[TrialsFolder | None, list[ContractEr
     root = Path(root)
     manifest = root / "trials.toml"
     col = _Collector(manifest)
-    if not root.is_dir():
-        return None, [ContractError("trials folder does not exist", path=root)], {}
-    if not manifest.is_file():
-        return None, [ContractError("missing trials.toml", path=root)], {}
-    try:
-        doc = tomllib.loads(manifest.read_text(encoding="utf-8-sig"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        return None, [ContractError(f"not valid TOML: {exc}", path=manifest)], {}
+    doc, unreadable = _read_manifest(root, manifest)
+    if unreadable is not None:
+        return None, [unreadable], {}
     schema = doc.get("schema")
     if schema != TRIALS_SCHEMA:
         col.add(f"unknown schema version {schema!r}", where="field schema", hint=f"this workbench reads {TRIALS_SCHEMA!r}")
         return None, col.folder, {}
+    fid = _folder_id(doc, root, col)
+    tank = _tank(doc.get("tank"), col)
+    camera = _camera(doc.get("camera"), col)
+    robot = _robot(doc.get("robot"), col)
+    trials = _trials(doc.get("trials"), root, camera, col)
+    if col.folder:
+        folder = None if camera is None else TrialsFolder(root, fid, tank, camera, robot, tuple(trials))
+        return folder, col.folder, col.per_trial
+    return TrialsFolder(root=root, id=fid, tank=tank, camera=camera, robot=robot, trials=tuple(trials)), [], col.per_trial
+
+
+def _read_manifest(root: Path, manifest: Path) -> tuple[dict | None, ContractError | None]:
+    """``(document, None)`` for a readable trials.toml, else ``(None, the error that makes the folder unusable)``."""
+    if not root.is_dir():
+        return None, ContractError("trials folder does not exist", path=root)
+    if not manifest.is_file():
+        return None, ContractError("missing trials.toml", path=root)
+    try:
+        return tomllib.loads(manifest.read_text(encoding="utf-8-sig")), None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        return None, ContractError(f"not valid TOML: {exc}", path=manifest)
+
+
+def _folder_id(doc: dict, root: Path, col: _Collector) -> str:
+    """The folder's ``id``; when missing or blank, a violation and the folder's name."""
     fid = doc.get("id")
     if not isinstance(fid, str) or not fid.strip():
         col.add("id must be a non-empty string", where="field id")
         fid = root.name
-    tank_t = doc.get("tank")
+    return fid
+
+
+def _tank(tank_t: Any, col: _Collector) -> TankSpec:
+    """The ``[tank]`` table (NaN sizes, and a violation, where a size is not a positive number)."""
     width = _number(tank_t.get("width_m")) if isinstance(tank_t, dict) else None
     length = _number(tank_t.get("length_m")) if isinstance(tank_t, dict) else None
     if width is None or width <= 0 or length is None or length <= 0:
         col.add("[tank] needs positive width_m and length_m", where="[tank]")
-    tank = TankSpec(width_m=width or float("nan"), length_m=length or float("nan"))
-    camera = _camera(doc.get("camera"), col)
-    robot_t = doc.get("robot")
+    return TankSpec(width_m=width or float("nan"), length_m=length or float("nan"))
+
+
+def _robot(robot_t: Any, col: _Collector) -> RobotSpec:
+    """The ``[robot]`` table; a violation for each marker not a contract colour, and for equal markers."""
     head = robot_t.get("head_marker") if isinstance(robot_t, dict) else None
     tail = robot_t.get("tail_marker") if isinstance(robot_t, dict) else None
     for key, val in (("head_marker", head), ("tail_marker", tail)):
@@ -303,18 +348,17 @@ def check_trials(root: str | Path) -> tuple[TrialsFolder | None, list[ContractEr
             col.add(f"{key} must be one of {', '.join(MARKER_COLOURS)}, got {val!r}", where=f"[robot] {key}")
     if head is not None and head == tail:
         col.add("head_marker and tail_marker must differ", where="[robot]")
-    robot = RobotSpec(head_marker=str(head), tail_marker=str(tail))
-    raw = doc.get("trials")
+    return RobotSpec(head_marker=str(head), tail_marker=str(tail))
+
+
+def _trials(raw: Any, root: Path, camera: CameraSpec | None, col: _Collector) -> list[TrialSpec]:
+    """The ``[[trials]]`` entries parsed, the first of each id kept; a violation for none and for each repeat."""
     if not isinstance(raw, list) or not raw:
         col.add("no [[trials]] entries", where="[[trials]]")
         raw = []
-    trials: list[TrialSpec] = first_of_each_id(
+    return first_of_each_id(
         ((i, _parse_trial(i, t, root, camera, col)) for i, t in enumerate(raw)),
         lambda i, spec: col.add(f"duplicate trial id {spec.id!r}", where=f"[[trials]] #{i + 1}"))
-    if col.folder:
-        folder = None if camera is None else TrialsFolder(root, fid, tank, camera, robot, tuple(trials))
-        return folder, col.folder, col.per_trial
-    return TrialsFolder(root=root, id=fid, tank=tank, camera=camera, robot=robot, trials=tuple(trials)), [], col.per_trial
 
 
 def load_trials(root: str | Path) -> tuple[TrialsFolder, dict[str, list[ContractError]]]:
