@@ -131,9 +131,7 @@ def split_parameter_sets(table: RunTable, fractions: Sequence[float] = (0.7, 0.1
     ``["frequency_hz"]``) draws val and test in proportion from every value of those parameters.
     """
     cols = table.param_columns
-    params: dict[tuple, dict] = {}
-    for row in table.runs.select(list(cols)).iter_rows(named=True):
-        params.setdefault(set_key(row, cols), {c: float(row[c]) for c in cols})
+    params = _parameter_sets(table)
     keys = sorted(params)
     n = len(keys)
     if n < 3:
@@ -144,29 +142,61 @@ def split_parameter_sets(table: RunTable, fractions: Sequence[float] = (0.7, 0.1
         if unknown:
             raise ContractError(f"data.split.pin_test names unknown parameters {unknown}")
     rng = np.random.default_rng(seed)
+    pinned = _pinned_sets(keys, params, pin_test, rng)
+    unknown = [c for c in stratify if c not in cols]
+    if unknown:
+        raise ContractError(f"data.split.stratify names unknown parameters {unknown} (parameters: {list(cols)})")
+    n_test, n_val, n_train = _split_sizes(n, fractions, len(pinned))
+    assignment = {k: "test" for k in pinned}
+    if stratify:
+        assignment.update(_stratified_assignment(keys, params, stratify, rng, pinned, n_test, n_val))
+    else:
+        assignment.update(_plain_assignment(keys, rng, pinned, n_train, n_val))
+    return ParameterSplit(seed, tuple(float(f) for f in fractions), cols, assignment, params,
+                          tuple(dict(p) for p in pin_test), tuple(stratify))
+
+
+def _parameter_sets(table: RunTable) -> dict[tuple, dict]:
+    """Set key -> the set's parameter values, for every motion-parameter set of the table."""
+    cols = table.param_columns
+    params: dict[tuple, dict] = {}
+    for row in table.runs.select(list(cols)).iter_rows(named=True):
+        params.setdefault(set_key(row, cols), {c: float(row[c]) for c in cols})
+    return params
+
+
+def _pinned_sets(keys: list[tuple], params: Mapping[tuple, Mapping[str, float]],
+                 pin_test: Sequence[Mapping[str, float]], rng: np.random.Generator) -> list[tuple]:
+    """One matching set per ``pin_test`` spec (the generator picks which; a spec matching no set left out)."""
     pinned: list[tuple] = []
     for spec in pin_test:
         cand = [k for k in keys if _matches(params[k], spec) and k not in pinned]
         if cand:
             pinned.append(cand[int(rng.integers(len(cand)))])
-    unknown = [c for c in stratify if c not in cols]
-    if unknown:
-        raise ContractError(f"data.split.stratify names unknown parameters {unknown} (parameters: {list(cols)})")
-    n_test = max(int(round(fractions[2] * n)), len(pinned), 1 if fractions[2] > 0 else 0)
+    return pinned
+
+
+def _split_sizes(n: int, fractions: Sequence[float], n_pinned: int) -> tuple[int, int, int]:
+    """Sets in (test, val, train): the fractions' shares, at least one where the fraction is positive."""
+    n_test = max(int(round(fractions[2] * n)), n_pinned, 1 if fractions[2] > 0 else 0)
     n_val = max(int(round(fractions[1] * n)), 1 if fractions[1] > 0 else 0)
     n_train = n - n_test - n_val
     if n_train < 1:
         raise DataError(f"{n} parameter sets are too few for fractions {list(fractions)}")
-    assignment = {k: "test" for k in pinned}
-    if stratify:
-        # test first (the pinned sets already hold part of it), then val, then train
-        order = [k for k in _stratified_order(keys, params, stratify, rng) if k not in pinned]
-        for i, k in enumerate(order):
-            assignment[k] = "test" if i < n_test - len(pinned) else ("val" if i < n_test - len(pinned) + n_val
-                                                                     else "train")
-    else:
-        rest = [keys[i] for i in rng.permutation(n) if keys[i] not in pinned]
-        for i, k in enumerate(rest):
-            assignment[k] = "train" if i < n_train else ("val" if i < n_train + n_val else "test")
-    return ParameterSplit(seed, tuple(float(f) for f in fractions), cols, assignment, params,
-                          tuple(dict(p) for p in pin_test), tuple(stratify))
+    return n_test, n_val, n_train
+
+
+def _stratified_assignment(keys: list[tuple], params: Mapping[tuple, Mapping[str, float]], stratify: Sequence[str],
+                           rng: np.random.Generator, pinned: list[tuple], n_test: int, n_val: int) -> dict[tuple, str]:
+    """The unpinned sets in stratified order: test first (the pinned sets already hold part of it), then val, train."""
+    order = [k for k in _stratified_order(keys, params, stratify, rng) if k not in pinned]
+    n_free_test = n_test - len(pinned)
+    return {k: "test" if i < n_free_test else ("val" if i < n_free_test + n_val else "train")
+            for i, k in enumerate(order)}
+
+
+def _plain_assignment(keys: list[tuple], rng: np.random.Generator, pinned: list[tuple], n_train: int,
+                      n_val: int) -> dict[tuple, str]:
+    """The unpinned sets in a seeded random order: train first, then val, then test."""
+    rest = [keys[i] for i in rng.permutation(len(keys)) if keys[i] not in pinned]
+    return {k: "train" if i < n_train else ("val" if i < n_train + n_val else "test") for i, k in enumerate(rest)}
