@@ -285,12 +285,7 @@ def run_points(frame, headings: Mapping[str, str] | None = None, params: DragFit
     """
     import polars as pl
 
-    need = {"run_id", "time_s"} | set(HEADING_CHANNEL.values())
-    missing = sorted(need - set(frame.columns))
-    if missing:
-        raise ContractError(f"processed towing frame lacks columns {missing}")
-    if "speed_mps" not in frame.columns and "position_m" not in frame.columns:
-        raise ContractError("processed towing frame has neither speed_mps nor position_m")
+    _check_towing_columns(frame)
     if "interpolated" in frame.columns:
         frame = frame.filter(~pl.col("interpolated"))
     points: list[RunPoint] = []
@@ -298,42 +293,74 @@ def run_points(frame, headings: Mapping[str, str] | None = None, params: DragFit
     for (run_id,), g in frame.group_by(["run_id"], maintain_order=True):
         run_id = str(run_id)
         g = g.sort("time_s")
-        heading = str(g["heading"][0]) if "heading" in g.columns else (headings or {}).get(run_id)
-        if heading not in HEADING_CHANNEL:
-            raise DataError(f"heading {heading!r} is not forward or lateral", run=run_id,
-                            hint="the manifest's heading names the towing direction")
-        t = g["time_s"].to_numpy().astype(float)
-        if "speed_mps" in g.columns:
-            v = g["speed_mps"].to_numpy().astype(float)
-        else:
-            v = np.gradient(g["position_m"].to_numpy().astype(float), t)
-        force = g[HEADING_CHANNEL[heading]].to_numpy().astype(float)
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v)) and np.all(np.isfinite(force))):
-            skipped.append((run_id, "non-finite samples"))
-            continue
-        window, v_ref, why = steady_window(t, np.abs(v), params.plateau)
-        if window is None:
+        point, why = _run_point(run_id, g, _run_heading(g, run_id, headings), params)
+        if point is None:
             skipped.append((run_id, why))
-            continue
-        notes = []
-        offset, offset_sem = 0.0, 0.0
-        if params.tare:
-            rest = rest_offset(t, np.abs(v), force, window, params)
-            if rest is None:
-                notes.append(f"no {params.tare_min_s:g} s rest before or after the tow: not tared")
-            else:
-                offset, offset_sem = rest
-        # the hydrodynamic force on the robot points against the tow: drag is its negative
-        f = -(force[window] - offset)
-        nominal = float(g["flow_speed_mps"][0]) if "flow_speed_mps" in g.columns else float("nan")
-        speed = float(np.abs(v[window]).mean())
-        if math.isfinite(nominal) and nominal > 0 and abs(speed - nominal) > params.speed_mismatch * nominal:
-            notes.append(f"steady speed {speed:.3f} m/s differs from the manifest's {nominal:.3f} m/s")
-        points.append(RunPoint(run_id=run_id, heading=heading, speed_mps=speed, nominal_speed_mps=nominal,
-                               drag_n=float(f.mean()), drag_sem_n=math.hypot(mean_sem(f, params.acf_window_c), offset_sem),
-                               window_s=(float(t[window][0]), float(t[window][-1])),
-                               n_samples=int(f.size), notes=tuple(notes)))
+        else:
+            points.append(point)
     return points, skipped
+
+
+def _check_towing_columns(frame) -> None:
+    """Refuse a towing frame without run id, time, both force channels, and speed or position."""
+    need = {"run_id", "time_s"} | set(HEADING_CHANNEL.values())
+    missing = sorted(need - set(frame.columns))
+    if missing:
+        raise ContractError(f"processed towing frame lacks columns {missing}")
+    if "speed_mps" not in frame.columns and "position_m" not in frame.columns:
+        raise ContractError("processed towing frame has neither speed_mps nor position_m")
+
+
+def _run_heading(g, run_id: str, headings: Mapping[str, str] | None) -> str:
+    """The run's towing heading: its ``heading`` column, else the manifest's; anything else is a ``DataError``."""
+    heading = str(g["heading"][0]) if "heading" in g.columns else (headings or {}).get(run_id)
+    if heading not in HEADING_CHANNEL:
+        raise DataError(f"heading {heading!r} is not forward or lateral", run=run_id,
+                        hint="the manifest's heading names the towing direction")
+    return heading
+
+
+def _run_signals(g, heading: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Time, carriage speed (``speed_mps``, else the derivative of ``position_m``) and the heading's force."""
+    t = g["time_s"].to_numpy().astype(float)
+    if "speed_mps" in g.columns:
+        v = g["speed_mps"].to_numpy().astype(float)
+    else:
+        v = np.gradient(g["position_m"].to_numpy().astype(float), t)
+    return t, v, g[HEADING_CHANNEL[heading]].to_numpy().astype(float)
+
+
+def _tare(t: np.ndarray, v: np.ndarray, force: np.ndarray, window: slice, params: DragFitSettings
+          ) -> tuple[np.ndarray | float, float, str | None]:
+    """The load cell's zero over ``window``, its standard error, and a note when it could not be read."""
+    if not params.tare:
+        return 0.0, 0.0, None
+    rest = rest_offset(t, np.abs(v), force, window, params)
+    if rest is None:
+        return 0.0, 0.0, f"no {params.tare_min_s:g} s rest before or after the tow: not tared"
+    return rest[0], rest[1], None
+
+
+def _run_point(run_id: str, g, heading: str, params: DragFitSettings) -> tuple[RunPoint | None, str]:
+    """One run reduced to its steady-stretch drag, or ``(None, why it was skipped)``."""
+    t, v, force = _run_signals(g, heading)
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v)) and np.all(np.isfinite(force))):
+        return None, "non-finite samples"
+    window, v_ref, why = steady_window(t, np.abs(v), params.plateau)
+    if window is None:
+        return None, why
+    offset, offset_sem, note = _tare(t, v, force, window, params)
+    notes = [] if note is None else [note]
+    # the hydrodynamic force on the robot points against the tow: drag is its negative
+    f = -(force[window] - offset)
+    nominal = float(g["flow_speed_mps"][0]) if "flow_speed_mps" in g.columns else float("nan")
+    speed = float(np.abs(v[window]).mean())
+    if math.isfinite(nominal) and nominal > 0 and abs(speed - nominal) > params.speed_mismatch * nominal:
+        notes.append(f"steady speed {speed:.3f} m/s differs from the manifest's {nominal:.3f} m/s")
+    return RunPoint(run_id=run_id, heading=heading, speed_mps=speed, nominal_speed_mps=nominal,
+                    drag_n=float(f.mean()), drag_sem_n=math.hypot(mean_sem(f, params.acf_window_c), offset_sem),
+                    window_s=(float(t[window][0]), float(t[window][-1])),
+                    n_samples=int(f.size), notes=tuple(notes)), ""
 
 
 # -- the fit -------------------------------------------------------------------------------------
