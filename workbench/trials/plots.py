@@ -116,46 +116,69 @@ def plot_boxplots(scores, path: str | Path, baseline: str | None = None) -> Path
               ("turn", "time_s", "turn: time (s)"), ("turn", "radius_m", "turn: radius (m)")]
     fig, axes = plt.subplots(1, 4, figsize=(12, 3.8))
     for ax, (task, name, title) in zip(axes, panels, strict=True):
-        # a time of an unfinished trial is the cap, not a time: boxes use finished trials only and the
-        # unfinished ones are drawn apart, as crosses above a dashed "not finished" line
-        timed = name == "time_s" and "completed" in scores.columns
-        data, labels, cap = [], [], None
-        for m in models:
-            sub = scores.filter((scores["model"] == m) & (scores["task"] == task)).drop_nulls(name)
-            if timed:
-                unfinished = sub.filter(~sub["completed"].cast(bool))
-                if unfinished.height:
-                    cap = max(cap or 0.0, float(unfinished[name].max()))
-                sub = sub.filter(sub["completed"].cast(bool))
-            data.append(sub[name].to_numpy())
-            labels.append(m)
-        if any(len(d) for d in data):
-            ax.boxplot([d if len(d) else [np.nan] for d in data], widths=0.5, showfliers=False)
-        rng = np.random.default_rng(0)
-        for i, m in enumerate(models, start=1):
-            sub = scores.filter((scores["model"] == m) & (scores["task"] == task)).drop_nulls(name)
-            done = sub["completed"].cast(bool).to_numpy() if timed else np.ones(sub.height, bool)
-            xs = i + rng.uniform(-0.12, 0.12, sub.height)
-            ys = sub[name].to_numpy().astype(float)
-            if timed and cap is not None:
-                ys = np.where(done, ys, cap * 1.05)
-            ax.scatter(xs[done], ys[done], color=cols[m], s=18, zorder=3)
-            if (~done).any():
-                ax.scatter(xs[~done], ys[~done], color=cols[m], marker="x", s=30, zorder=3)
-            for xx, yy, sol in zip(xs, ys, sub["solution"].to_list(), strict=True):
-                ax.annotate(f"{sol}", (xx, yy), fontsize=6, xytext=(3, 2), textcoords="offset points")
-        if timed and cap is not None:
-            ax.axhline(cap, color="0.4", ls="--", lw=0.8)
-            ax.text(0.02, cap * 1.095, f"x: not finished in {cap:g} s", fontsize=7, va="center",
-                    transform=ax.get_yaxis_transform())
-            ax.set_ylim(0.0, cap * 1.13)
-        ax.set_xlim(0.5, len(models) + 0.5)
-        ax.set_xticks(range(1, len(models) + 1))
-        ax.set_xticklabels(labels, fontsize=8)
-        ax.set_title(title, fontsize=9)
-        ax.grid(axis="y", alpha=0.3)
+        _score_panel(ax, scores, models, cols, task, name, title)
     fig.suptitle("open-water trials per model (points: solutions, labelled by rank)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return Path(path)
+
+
+def _score_panel(ax, scores, models: list[str], cols: dict[str, str], task: str, name: str, title: str) -> None:
+    """One task's score per model: boxes of the finished trials, every solution a labelled point.
+
+    A time of an unfinished trial is the cap, not a time: boxes use finished trials only and the
+    unfinished ones are drawn apart, as crosses above a dashed "not finished" line.
+    """
+    timed = name == "time_s" and "completed" in scores.columns
+    data, cap = _box_data(scores, models, task, name, timed)
+    if any(len(d) for d in data):
+        ax.boxplot([d if len(d) else [np.nan] for d in data], widths=0.5, showfliers=False)
+    _solution_points(ax, scores, models, cols, task, name, timed, cap)
+    if timed and cap is not None:
+        ax.axhline(cap, color="0.4", ls="--", lw=0.8)
+        ax.text(0.02, cap * 1.095, f"x: not finished in {cap:g} s", fontsize=7, va="center",
+                transform=ax.get_yaxis_transform())
+        ax.set_ylim(0.0, cap * 1.13)
+    ax.set_xlim(0.5, len(models) + 0.5)
+    ax.set_xticks(range(1, len(models) + 1))
+    ax.set_xticklabels(list(models), fontsize=8)
+    ax.set_title(title, fontsize=9)
+    ax.grid(axis="y", alpha=0.3)
+
+
+def _task_scores(scores, model: str, task: str, name: str):
+    """The rows of one model and task that have the score ``name``."""
+    return scores.filter((scores["model"] == model) & (scores["task"] == task)).drop_nulls(name)
+
+
+def _box_data(scores, models: list[str], task: str, name: str, timed: bool) -> tuple[list[np.ndarray], float | None]:
+    """Per model, the values the box is drawn from (finished trials only for a time), and the time cap seen."""
+    data, cap = [], None
+    for m in models:
+        sub = _task_scores(scores, m, task, name)
+        if timed:
+            unfinished = sub.filter(~sub["completed"].cast(bool))
+            if unfinished.height:
+                cap = max(cap or 0.0, float(unfinished[name].max()))
+            sub = sub.filter(sub["completed"].cast(bool))
+        data.append(sub[name].to_numpy())
+    return data, cap
+
+
+def _solution_points(ax, scores, models: list[str], cols: dict[str, str], task: str, name: str, timed: bool,
+                     cap: float | None) -> None:
+    """Every solution as a jittered point labelled by rank; for a time, the unfinished as crosses above the cap."""
+    rng = np.random.default_rng(0)
+    for i, m in enumerate(models, start=1):
+        sub = _task_scores(scores, m, task, name)
+        done = sub["completed"].cast(bool).to_numpy() if timed else np.ones(sub.height, bool)
+        xs = i + rng.uniform(-0.12, 0.12, sub.height)
+        ys = sub[name].to_numpy().astype(float)
+        if timed and cap is not None:
+            ys = np.where(done, ys, cap * 1.05)
+        ax.scatter(xs[done], ys[done], color=cols[m], s=18, zorder=3)
+        if (~done).any():
+            ax.scatter(xs[~done], ys[~done], color=cols[m], marker="x", s=30, zorder=3)
+        for xx, yy, sol in zip(xs, ys, sub["solution"].to_list(), strict=True):
+            ax.annotate(f"{sol}", (xx, yy), fontsize=6, xytext=(3, 2), textcoords="offset points")
