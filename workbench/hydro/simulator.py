@@ -204,6 +204,30 @@ def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, 
     (docs/hydro.md has the measurements). ``iterations`` counts the leg-model calls;
     ``on_iteration(calls, change_per_gait)`` reports progress.
     """
+    _check_settings(duration_s, dt_s, relaxation, method, window_s, max_window_s, max_iter)
+    n_ticks = int(round(duration_s / dt_s)) + 1
+    t = np.arange(n_ticks) * dt_s
+    solve = FlowMap(gaits, leg_model, robot, t, dt_s)
+    flow = _start_flow(len(gaits), n_ticks, initial_flow)
+    failed = np.zeros(len(gaits), bool)
+    if method == "picard":
+        w_leg, state, residual, k = picard(solve, flow, tol_mps, max_iter, relaxation, on_iteration)
+    else:
+        failed = _solve_windows(solve, flow, gaits, tol_mps, max_iter, relaxation, window_s, max_window_s,
+                                anderson, on_iteration, guessed=initial_flow is not None)
+        w_leg, state, residual, k = _final_pass(solve, flow, on_iteration)
+    w_body = legs_to_body(robot, w_leg)
+    zeros = np.zeros_like(state["fx"])
+    body = np.stack([state["fx"], state["fy"], zeros, zeros, zeros, state["tz"]], axis=-1)
+    return Trajectory(t_s=t, x_m=state["x"], y_m=state["y"], yaw_rad=state["yaw"], vx_mps=state["vx"],
+                      vy_mps=state["vy"], yaw_rate_rps=state["r"], leg_wrench=w_body, body_wrench=body,
+                      leg_flow_mps=flow, gaits=gaits, model=getattr(leg_model, "name", "model"), iterations=k,
+                      residual_mps=residual, converged=(residual < tol_mps) & ~failed)
+
+
+def _check_settings(duration_s: float, dt_s: float, relaxation: float, method: str, window_s: float,
+                    max_window_s: float, max_iter: int) -> None:
+    """Refuse settings :func:`simulate` cannot run with (a ``SettingError`` naming the setting)."""
     if duration_s <= 0 or dt_s <= 0:
         raise SettingError("duration_s and dt_s must be positive")
     if not 0 < relaxation <= 1:
@@ -212,50 +236,49 @@ def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, 
         raise SettingError(f"method must be one of {METHODS}, got {method!r}")
     if window_s <= 0 or max_window_s <= 0 or max_iter < 1:
         raise SettingError("window_s and max_window_s must be positive and max_iter at least 1")
-    b = len(gaits)
-    n_ticks = int(round(duration_s / dt_s)) + 1
-    t = np.arange(n_ticks) * dt_s
-    solve = FlowMap(gaits, leg_model, robot, t, dt_s)
+
+
+def _start_flow(b: int, n_ticks: int, initial_flow: np.ndarray | None) -> np.ndarray:
+    """The (B, 4, T) flow to start from: still water, or ``initial_flow`` (checked) with the swim at rest at tick 0."""
     flow = np.zeros((b, 4, n_ticks))
-    guessed = initial_flow is not None
-    if guessed:
+    if initial_flow is not None:
         initial_flow = np.asarray(initial_flow, float)
         if initial_flow.shape != flow.shape or not np.all(np.isfinite(initial_flow)):
             raise SettingError(f"initial_flow must be finite with shape {flow.shape}, got {initial_flow.shape}")
         flow[:] = initial_flow
         flow[:, :, 0] = 0.0                            # the swim starts at rest
-    failed = np.zeros(b, bool)
-    if method == "picard":
-        w_leg, state, residual, k = picard(solve, flow, tol_mps, max_iter, relaxation, on_iteration)
-    else:
-        # gaits that a window gave up are solved again from still water on windows four times shorter
-        # (the others held); whether a gait is retried depends on that gait alone, not on the batch
-        todo = np.ones(b, bool)
-        attempt = 0
-        while True:
-            trial = flow.copy() if attempt == 0 else np.where(todo[:, None, None], 0.0, flow)
-            gave_up = ~todo
-            scale = 4.0 ** attempt
-            windowed(solve, trial, gaits, tol_mps, max_iter, relaxation, window_s / scale,
-                     max(max_window_s / scale, window_s / scale), gave_up, on_iteration, anderson,
-                     guessed=guessed and attempt == 0)
-            flow[todo] = trial[todo]
-            todo &= gave_up
-            attempt += 1
-            if not todo.any() or window_s / 4.0 ** attempt < MIN_WINDOW_S:
-                break
-        failed = todo
-        # the honest check: one pass over the whole horizon with the flow found
-        w_leg = solve.wrench(flow)
-        state, new_flow = solve.swim(w_leg)
-        residual = np.abs(new_flow - flow).max(axis=(1, 2))
-        if on_iteration is not None:
-            on_iteration(solve.calls, residual.copy())
-        k = solve.calls
-    w_body = legs_to_body(robot, w_leg)
-    zeros = np.zeros_like(state["fx"])
-    body = np.stack([state["fx"], state["fy"], zeros, zeros, zeros, state["tz"]], axis=-1)
-    return Trajectory(t_s=t, x_m=state["x"], y_m=state["y"], yaw_rad=state["yaw"], vx_mps=state["vx"],
-                      vy_mps=state["vy"], yaw_rate_rps=state["r"], leg_wrench=w_body, body_wrench=body,
-                      leg_flow_mps=flow, gaits=gaits, model=getattr(leg_model, "name", "model"), iterations=k,
-                      residual_mps=residual, converged=(residual < tol_mps) & ~failed)
+    return flow
+
+
+def _solve_windows(solve: FlowMap, flow: np.ndarray, gaits: GaitBatch, tol_mps: float, max_iter: int,
+                   relaxation: float, window_s: float, max_window_s: float, anderson: int,
+                   on_iteration: Callable[[int, np.ndarray], None] | None, *, guessed: bool) -> np.ndarray:
+    """Solve ``flow`` in place window by window, retrying given-up gaits on shorter windows; the gaits still failed.
+
+    Gaits that a window gave up are solved again from still water on windows four times shorter
+    (the others held); whether a gait is retried depends on that gait alone, not on the batch.
+    """
+    todo = np.ones(len(gaits), bool)
+    attempt = 0
+    while True:
+        trial = flow.copy() if attempt == 0 else np.where(todo[:, None, None], 0.0, flow)
+        gave_up = ~todo
+        scale = 4.0 ** attempt
+        windowed(solve, trial, gaits, tol_mps, max_iter, relaxation, window_s / scale,
+                 max(max_window_s / scale, window_s / scale), gave_up, on_iteration, anderson,
+                 guessed=guessed and attempt == 0)
+        flow[todo] = trial[todo]
+        todo &= gave_up
+        attempt += 1
+        if not todo.any() or window_s / 4.0 ** attempt < MIN_WINDOW_S:
+            return todo
+
+
+def _final_pass(solve: FlowMap, flow: np.ndarray, on_iteration: Callable[[int, np.ndarray], None] | None):
+    """The honest check: one pass of F over the whole horizon; ``(leg wrenches, state, residual, calls)``."""
+    w_leg = solve.wrench(flow)
+    state, new_flow = solve.swim(w_leg)
+    residual = np.abs(new_flow - flow).max(axis=(1, 2))
+    if on_iteration is not None:
+        on_iteration(solve.calls, residual.copy())
+    return w_leg, state, residual, solve.calls
