@@ -61,6 +61,16 @@ def check_stream(s: Stream, params: IngestSettings, run: str | None,
     def fail(cls, fault, i=None, hint=None):
         raise cls(fault, path=s.path, run=run, where=None if i is None else s.locate(int(i)), hint=hint)
 
+    _check_samples(s, fail)
+    _check_timing(s.time_s, params, fail)
+    for name, x in s.values.items():
+        _check_cells(name, np.asarray(x, float), params.limits, full_scale, fail)
+    values, filled = _bridged_values(s.values, params.max_nan_run, fail)
+    return replace(s, values=values, nan_filled=s.nan_filled + filled, sync=s.sync.astype(np.int8))
+
+
+def _check_samples(s: Stream, fail) -> None:
+    """Refuse a log with fewer than three samples, a missing or non-finite time stamp, or a trigger level not 0/1."""
     n = len(s.time_s)
     if n == 0:
         fail(DataError, f"no {s.role} samples")
@@ -69,32 +79,37 @@ def check_stream(s: Stream, params: IngestSettings, run: str | None,
     bad = ~np.isfinite(s.time_s)
     if bad.any():
         fail(DataError, "missing or non-finite time_s", np.argmax(bad))
-    sync = s.sync
-    badsync = ~((sync == 0) | (sync == 1))
+    badsync = ~((s.sync == 0) | (s.sync == 1))
     if badsync.any():
         i = int(np.argmax(badsync))
-        fail(ContractError, f"sync must be 0 or 1, got {sync[i]!r}", i)
-    d = np.diff(s.time_s)
+        fail(ContractError, f"sync must be 0 or 1, got {s.sync[i]!r}", i)
+
+
+def _check_timing(time_s: np.ndarray, params: IngestSettings, fail) -> None:
+    """Refuse time stamps that repeat, go back, or leave a gap beyond the larger of the two gap limits."""
+    d = np.diff(time_s)
     if (d <= 0).any():
         i = int(np.argmax(d <= 0))
         if d[i] == 0:
-            fail(DataError, f"duplicated timestamp time_s = {s.time_s[i]:.6f} (same as the previous sample)", i + 1)
-        fail(DataError, f"non-monotonic timestamps: time_s goes back from {s.time_s[i]:.6f} to {s.time_s[i + 1]:.6f}",
+            fail(DataError, f"duplicated timestamp time_s = {time_s[i]:.6f} (same as the previous sample)", i + 1)
+        fail(DataError, f"non-monotonic timestamps: time_s goes back from {time_s[i]:.6f} to {time_s[i + 1]:.6f}",
              i + 1)
     med = float(np.median(d))
     limit = max(params.max_gap_s, params.gap_factor * med)
     if (d > limit).any():
         i = int(np.argmax(d > limit))
-        fail(DataError, f"gap of {d[i]:.3f} s in time_s after {s.time_s[i]:.6f} (limit {limit:.3f} s)", i + 1)
-    for name, x in s.values.items():
-        _check_cells(name, np.asarray(x, float), params.limits, full_scale, fail)
-    values, filled = {}, 0
-    for name, x in s.values.items():
-        x, k = _bridge_nans(x, params.max_nan_run, lambda a, b, name=name: fail(
-            DataError, f"NaN stretch of {b - a} samples in {name} (up to {params.max_nan_run} are bridged)", a))
-        values[name] = x
+        fail(DataError, f"gap of {d[i]:.3f} s in time_s after {time_s[i]:.6f} (limit {limit:.3f} s)", i + 1)
+
+
+def _bridged_values(values: dict[str, np.ndarray], max_nan_run: int, fail) -> tuple[dict[str, np.ndarray], int]:
+    """Every column with its short NaN runs bridged, and how many cells were filled; a longer run is refused."""
+    out, filled = {}, 0
+    for name, x in values.items():
+        x, k = _bridge_nans(x, max_nan_run, lambda a, b, name=name: fail(
+            DataError, f"NaN stretch of {b - a} samples in {name} (up to {max_nan_run} are bridged)", a))
+        out[name] = x
         filled += k
-    return replace(s, values=values, nan_filled=s.nan_filled + filled, sync=sync.astype(np.int8))
+    return out, filled
 
 
 def _check_cells(name: str, x: np.ndarray, limits, full_scale, fail) -> None:
