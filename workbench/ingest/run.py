@@ -92,10 +92,40 @@ def process_run(campaign: Campaign, run: RunSpec, params: IngestSettings) -> Run
     ctrl = streams["motion" if campaign.is_tunnel else "carriage"]
     fit = align_clock(ctrl.time_s, ctrl.sync, lc.time_s, lc.sync, path=lc.path, run=run.id,
                       max_residual_ms=params.max_edge_residual_ms)
-    flags: list[str] = []
 
     # load cell: uniform grid on its own clock -> zero-phase low-pass -> controller ticks
     saturated = _saturation(lc.values, campaign.loadcell.full_scale, params.saturation_fraction)
+    grid, w = _filtered_loadcell(lc, params)
+    grid_c = fit.to_controller(grid)
+
+    tc = ctrl.time_s
+    t_rel = tc - fit.start_s
+    keep = (tc >= grid_c[0]) & (tc <= grid_c[-1]) & (t_rel >= -params.max_rest_s)
+    if campaign.is_tunnel:
+        cols, keep, flags = _joint_columns(ctrl, campaign, params, keep, t_rel)
+    else:
+        cols, flags = _carriage_columns(ctrl, params), []
+    if not (keep & (t_rel >= 0)).any():
+        raise DataError("the load-cell log does not overlap the run on the controller clock", path=lc.path,
+                        run=run.id)
+    data: dict[str, np.ndarray] = {"time_s": t_rel[keep]}
+    for name, x in cols.items():
+        data[name] = x[keep]
+    wt = resample_linear(grid_c, w, tc[keep])
+    for k, c in enumerate(WRENCH_CHANNELS):
+        data[c] = wt[:, k]
+
+    duration = float(t_rel[keep][-1])
+    nan_filled = sum(s.nan_filled for s in streams.values())
+    flags += _quality_flags(campaign, run, duration, tc, lc, nan_filled, saturated)
+    quality = _quality(run, lc, ctrl, fit, saturated, nan_filled, t_rel[keep], flags)
+    hashes = {_rel(campaign, s): s.sha256 for s in streams.values()}
+    return RunOutput(run_id=run.id, facility=campaign.facility, columns=data, constants=_constants(campaign, run),
+                     quality=quality, hashes=hashes)
+
+
+def _filtered_loadcell(lc: Stream, params: IngestSettings) -> tuple[np.ndarray, np.ndarray]:
+    """The load cell's wrench on a uniform grid of its own clock (dropped frames bridged), zero-phase low-passed."""
     raw = lc.column_matrix(WRENCH_CHANNELS)
     if is_uniform(lc.time_s, 0.05):
         grid, w = lc.time_s, raw
@@ -103,37 +133,32 @@ def process_run(campaign: Campaign, run: RunSpec, params: IngestSettings) -> Run
     else:
         grid, dt = uniform_grid(lc.time_s)
         w = resample_linear(lc.time_s, raw, grid)
-    w = lowpass(w, 1.0 / dt, params.lowpass_cutoff_hz, params.lowpass_order)
-    grid_c = fit.to_controller(grid)
+    return grid, lowpass(w, 1.0 / dt, params.lowpass_cutoff_hz, params.lowpass_order)
 
-    tc = ctrl.time_s
-    t_rel = tc - fit.start_s
-    keep = (tc >= grid_c[0]) & (tc <= grid_c[-1]) & (t_rel >= -params.max_rest_s)
-    cols: dict[str, np.ndarray] = {}
-    if campaign.is_tunnel:
-        th, tk = _angles(ctrl, campaign, params)
-        oh = derivative(tc, th, params.velocity_window_ticks, params.velocity_polyorder)
-        ok_ = derivative(tc, tk, params.velocity_window_ticks, params.velocity_polyorder)
-        rest = keep & (t_rel < 0)
-        if rest.any() and max(np.ptp(th[rest]), np.ptp(tk[rest])) > params.rest_tolerance_deg:
-            keep &= t_rel >= 0
-            flags.append("moving_before_start")
-        cols.update(theta_h_deg=th, theta_k_deg=tk, omega_h_dps=oh, omega_k_dps=ok_)
-    else:
-        pos = lowpass_sampled(tc, ctrl.values["position_m"], params.lowpass_cutoff_hz, params.lowpass_order)
-        speed = derivative(tc, pos, params.velocity_window_ticks, params.velocity_polyorder)
-        cols.update(position_m=pos, speed_mps=speed)
-    if not (keep & (t_rel >= 0)).any():
-        raise DataError("the load-cell log does not overlap the run on the controller clock", path=lc.path,
-                        run=run.id)
-    ticks = tc[keep]
-    wt = resample_linear(grid_c, w, ticks)
-    n = len(ticks)
-    data: dict[str, np.ndarray] = {"time_s": t_rel[keep]}
-    for name, x in cols.items():
-        data[name] = x[keep]
-    for k, c in enumerate(WRENCH_CHANNELS):
-        data[c] = wt[:, k]
+
+def _joint_columns(ctrl: Stream, campaign: Campaign, params: IngestSettings, keep: np.ndarray, t_rel: np.ndarray
+                   ) -> tuple[dict[str, np.ndarray], np.ndarray, list[str]]:
+    """Joint angles and velocities on the controller ticks; the rows kept (the rest dropped when the leg moved)."""
+    th, tk = _angles(ctrl, campaign, params)
+    oh = derivative(ctrl.time_s, th, params.velocity_window_ticks, params.velocity_polyorder)
+    ok_ = derivative(ctrl.time_s, tk, params.velocity_window_ticks, params.velocity_polyorder)
+    flags = []
+    rest = keep & (t_rel < 0)
+    if rest.any() and max(np.ptp(th[rest]), np.ptp(tk[rest])) > params.rest_tolerance_deg:
+        keep = keep & (t_rel >= 0)
+        flags.append("moving_before_start")
+    return dict(theta_h_deg=th, theta_k_deg=tk, omega_h_dps=oh, omega_k_dps=ok_), keep, flags
+
+
+def _carriage_columns(ctrl: Stream, params: IngestSettings) -> dict[str, np.ndarray]:
+    """The carriage's low-passed position and its speed on the controller ticks."""
+    pos = lowpass_sampled(ctrl.time_s, ctrl.values["position_m"], params.lowpass_cutoff_hz, params.lowpass_order)
+    speed = derivative(ctrl.time_s, pos, params.velocity_window_ticks, params.velocity_polyorder)
+    return dict(position_m=pos, speed_mps=speed)
+
+
+def _constants(campaign: Campaign, run: RunSpec) -> dict[str, object]:
+    """The run's per-run columns: ids, flow speed, and the motion parameters (tunnel) or the heading (towing)."""
     constants: dict[str, object] = {"campaign_id": campaign.id, "run_id": run.id,
                                     "flow_speed_mps": float(run.flow_speed_mps), "interpolated": False}
     if campaign.is_tunnel:
@@ -141,25 +166,35 @@ def process_run(campaign: Campaign, run: RunSpec, params: IngestSettings) -> Run
         constants["cycles"] = run.cycles
     else:
         constants["heading"] = run.heading
+    return constants
 
-    duration = float(t_rel[keep][-1])
+
+def _quality_flags(campaign: Campaign, run: RunSpec, duration: float, tc: np.ndarray, lc: Stream, nan_filled: int,
+                   saturated: dict[str, int]) -> list[str]:
+    """The run's quality flags after the rest check: incomplete, dropped_frames, nan_filled, saturated."""
+    flags = []
     if campaign.is_tunnel and run.cycles and run.params.get("frequency_hz"):
         expected = run.cycles / run.params["frequency_hz"]
         if duration < expected - 2 * float(np.median(np.diff(tc))):
             flags.append("incomplete")
     if lc.dropped_frames:
         flags.append("dropped_frames")
-    nan_filled = sum(s.nan_filled for s in streams.values())
     if nan_filled:
         flags.append("nan_filled")
     if saturated:
         flags.append("saturated")
-    rest_s = float(-t_rel[keep][0]) if t_rel[keep][0] < 0 else 0.0
-    quality = {
+    return flags
+
+
+def _quality(run: RunSpec, lc: Stream, ctrl: Stream, fit, saturated: dict[str, int], nan_filled: int,
+             time_s: np.ndarray, flags: list[str]) -> dict:
+    """The run's quality record (contract section 3): sources, sample counts, clock fit, faults bridged, flags."""
+    rest_s = float(-time_s[0]) if time_s[0] < 0 else 0.0
+    return {
         "run_id": run.id,
         "status": "ok",
         "source": "mcap" if run.mcap else lc.source,
-        "ticks": n,
+        "ticks": len(time_s),
         "loadcell_samples": len(lc),
         "controller_samples": len(ctrl),
         "dropped_frames": int(lc.dropped_frames),
@@ -173,12 +208,9 @@ def process_run(campaign: Campaign, run: RunSpec, params: IngestSettings) -> Run
         "saturated_samples": saturated,
         "nan_filled": int(nan_filled),
         "rest_s": round(rest_s, 6),
-        "duration_s": round(duration, 6),
+        "duration_s": round(float(time_s[-1]), 6),
         "flags": flags,
     }
-    hashes = {_rel(campaign, s): s.sha256 for s in streams.values()}
-    return RunOutput(run_id=run.id, facility=campaign.facility, columns=data, constants=constants,
-                     quality=quality, hashes=hashes)
 
 
 def _rel(campaign: Campaign, s: Stream) -> str:
