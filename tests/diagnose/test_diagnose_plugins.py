@@ -25,6 +25,8 @@ ROOT = Path(__file__).resolve().parents[2]
 PKG = ROOT / "workbench" / "diagnose"
 #: the code that runs the diagnosis: it asks effects through their hooks and never names one
 GENERIC = ["loop.py", "loop_claims.py", "loop_results.py", "loop_settings.py", "loop_threads.py", "selection.py",
+           "selection_candidates.py", "selection_claims.py", "selection_finish.py", "selection_judge.py",
+           "selection_records.py", "selection_search.py",
            "problem.py", "chain.py", "lsq.py", "data.py", "evidence.py", "evidence_base.py", "evidence_locked.py",
            "evidence_lines.py", "evidence_tones.py", "evidence_dependence.py"]
 

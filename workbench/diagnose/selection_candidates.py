@@ -1,0 +1,166 @@
+"""The candidates of one selection step: every remaining effect fitted beside the chosen ones.
+
+Linear effects are fitted alone and in pairs from one set of block sums; effects with searched
+parameters through :func:`~workbench.diagnose.selection_search.search` (tones at each of the
+strongest residual lines). Prunable effects (crosstalk, drift) keep only their significant
+entries (:func:`prune`), an implausible alias of a plausible entry going first.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from workbench.diagnose import lsq
+from workbench.diagnose.chain import Active
+from workbench.diagnose.effects.base import Effect
+from workbench.diagnose.selection_records import Candidate, SelectionSettings
+from workbench.diagnose.selection_search import search, snap
+
+
+def candidates(s: SelectionSettings, problem, config, coefs, names, remaining, current, peaks_of, last_nl, progress):
+    """Every remaining effect fitted beside the chosen ones (linear ones also in pairs; tones at each line)."""
+    linear = [e for e in remaining if not e.search and not e.needs_peak]
+    cands = _linear_candidates(s, problem, config, coefs, names, linear)
+    for e in remaining:
+        if e.needs_peak:
+            peaks = peaks_of(e, config, current) if peaks_of is not None else []
+            strongest = sorted(peaks, key=lambda p: -max(p.ratio.values(), default=0.0))[: s.max_peaks]
+            for pk in strongest:
+                cands.append(_nonlinear_candidate(s, problem, config, coefs, names, e, pk))
+        elif e.search:
+            # after the first step, start from the last optimum (the landscape moves little)
+            c = _nonlinear_candidate(s, problem, config, coefs, names, e, start=last_nl.get(e.name))
+            last_nl[e.name] = dict(c.active.nl)
+            cands.append(c)
+        if progress:
+            progress(e.name)
+    return cands
+
+
+def _linear_candidates(s: SelectionSettings, problem, config, coefs, names, effects) -> list[Candidate]:
+    """Every linear effect alone, and every pair (fitted from one set of block sums)."""
+    if not effects:
+        return []
+    sup = config
+    for e in effects:
+        sup = sup.with_effect(Active(e, {}))
+    extra = {e.name: [f"{e.name}.{n}" for n in e.linear_names()] for e in effects}
+    all_names = names + [n for e in effects for n in extra[e.name]]
+    gr = problem.grams(sup, coefs, all_names)
+    out = []
+    groups = [(e,) for e in effects]
+    if s.pairs:
+        groups += [(a, b) for i, a in enumerate(effects) for b in effects[i + 1:]]
+    for group in groups:
+        nm = names + [n for e in group for n in extra[e.name]]
+        sub = gr.subset(nm)
+        f = lsq.fit(sub, problem.weights, problem.settings.hac_lags)
+        f.grams = sub  # type: ignore[attr-defined]
+        cfg = config
+        for e in group:
+            cfg = cfg.with_effect(Active(e, {}))
+        out.append(Candidate(group[0], Active(group[0], {}), cfg, nm, f,
+                             partner=group[1] if len(group) > 1 else None))
+    return out
+
+
+def _nonlinear_candidate(s: SelectionSettings, problem, config, coefs, names, effect, peak=None, start=None) -> Candidate:
+    """An effect with searched parameters fitted beside the chosen ones (a tone around ``peak``, others from ``start``)."""
+    grids = None
+    if effect.needs_peak:
+        f0 = peak.frequency_hz
+        hw = s.tone_window_hz
+        # the frequency proposed by the evidence is the effect's first searched parameter
+        grids = {effect.search[0].name: tuple(np.round(np.linspace(f0 - hw, f0 + hw, 9), 4))}
+        start = None
+    nl, profile = search(s, problem, config, coefs, names, effect, grids, start=start)
+    if getattr(problem, "surrogate_search", False) and effect.stage == "input":
+        # an expensive model runs once per input value: values on a 2 % (log) or 0.005 grid
+        # recur from step to step, and the model's output for them is still cached
+        nl = {p.name: snap(nl[p.name], p) for p in effect.search}
+    act = Active(effect, nl)
+    cfg = config.with_effect(act)
+    nm = names + [f"{effect.name}.{n}" for n in effect.linear_names()]
+    # an input effect with an expensive model is screened through the surrogate; only the
+    # candidate about to be claimed is refitted with the model itself (select)
+    sur = bool(getattr(problem, "surrogate_search", False) and effect.stage == "input")
+    f = problem.fit(cfg, coefs, nm, surrogate=sur)
+    return Candidate(effect, act, cfg, nm, f, profile=profile, surrogate=sur)
+
+
+def prune(s: SelectionSettings, problem, cand: Candidate, coefs) -> Candidate:
+    """Drop individually insignificant entries of prunable effects (crosstalk, drift) and refit."""
+    for e in cand.effects:
+        if e.prunable:
+            cand = _prune_one(s, problem, cand, e)
+    return cand
+
+
+def _prune_one(s: SelectionSettings, problem, cand: Candidate, e: Effect) -> Candidate:
+    """``e``'s entries reduced to the significant ones by backward elimination, refitted (``cand`` if all stay)."""
+    own = [n for n in cand.names if n.startswith(e.name + ".")]
+    zc = stats.norm.isf(s.prune_alpha / (2 * max(len(own), 1)))
+    keep = list(own)
+    gr = cand.fit.grams
+    # backward elimination: drop the weakest entry and refit until every entry left is significant;
+    # an entry outside its plausible range whose column is nearly that of a plausible entry in
+    # the same channel is that entry's alias (tz = 0.02 fy makes x_fz_tz = 1.5 read as x_fz_fy =
+    # 0.03) and goes first, whatever its z
+    while len(keep) > 1:
+        names = [n for n in cand.names if n not in own] + keep
+        f = lsq.fit(gr.subset(names), problem.weights, problem.settings.hac_lags)
+        co, se = f.coefs(), f.stderr()
+        alias = _implausible_alias(e, gr, keep, co)
+        if alias is not None:
+            keep.remove(alias)
+            continue
+        z = {n: abs(co[n]) / se[n] if se[n] > 0 else 0.0 for n in keep}
+        weakest = min(keep, key=z.get)
+        if z[weakest] >= zc:
+            break
+        keep.remove(weakest)
+    if len(keep) == len(own):
+        return cand
+    names = [n for n in cand.names if n not in own] + keep
+    sub = gr.subset(names)
+    f = lsq.fit(sub, problem.weights, problem.settings.hac_lags)
+    f.grams = sub  # type: ignore[attr-defined]
+    return Candidate(cand.effect, cand.active, cand.config, names, f, cand.test, cand.gain_c, cand.profile,
+                     cand.ok, cand.note, cand.partner)
+
+
+def _implausible_alias(e: Effect, gr: lsq.Grams, keep: list[str], coefs: dict, collinear: float = 0.95) -> str | None:
+    """The most implausible of ``keep`` (qualified names of ``e``'s entries) that aliases a plausible one.
+
+    Two entries alias when their columns in the same channel are nearly proportional (|cosine|
+    at least ``collinear`` over the training blocks); only the plausible one of the two is
+    physics, the other reads the same signal through a proportional source.
+    """
+    def outside(n: str) -> float:
+        short = n.split(".", 1)[1]
+        if not e.implausible({short: coefs[n]}):
+            return 0.0
+        rng = e.ranges.get(short) or next((r for pat, r in e.ranges.items()
+                                            if pat.endswith("*") and short.startswith(pat[:-1])), (0.0, 0.0))
+        return abs(coefs[n]) / max(abs(rng[0]), abs(rng[1]), 1e-300)
+
+    bad = sorted((n for n in keep if outside(n) > 0), key=outside, reverse=True)
+    if not bad:
+        return None
+    pos = {n: i for i, n in enumerate(gr.names)}
+    train = ~gr.heldout
+    for n in bad:
+        for c in range(6):
+            cols = list(gr.chan_cols[c])
+            if pos[n] not in cols:
+                continue
+            g = gr.G[c][train].sum(axis=0)
+            i = cols.index(pos[n])
+            for m in keep:
+                if m == n or outside(m) > 0 or pos[m] not in cols:
+                    continue
+                j = cols.index(pos[m])
+                if abs(g[i, j]) >= collinear * np.sqrt(max(g[i, i] * g[j, j], 1e-300)):
+                    return n
+    return None

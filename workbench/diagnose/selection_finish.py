@@ -1,0 +1,108 @@
+"""The end of a selection path: joint refinement of the searched values, then effects that no longer earn a place.
+
+:func:`refine` re-searches each effect's nonlinear parameters with the others at their final
+values (with the model itself, never its surrogate); :func:`drop_refused` drops an effect whose
+refined values are refused or implausible (another effect in disguise); :func:`backward_check`
+drops, weakest first, an effect the held-out test no longer supports once the others are final.
+"""
+
+from __future__ import annotations
+
+from workbench.diagnose.chain import Active
+from workbench.diagnose.selection_judge import judge
+from workbench.diagnose.selection_records import SelectionSettings
+from workbench.diagnose.selection_search import parabola, search
+
+
+def refine(s: SelectionSettings, problem, config, coefs, names, current):
+    """Re-search each nonlinear parameter with the others at their final values (one round).
+
+    Always with the model itself (no lagged-output surrogate): these are the reported values.
+    """
+    surrogate = getattr(problem, "surrogate_search", False)
+    problem.surrogate_search = False
+    try:
+        for a in list(config.actives):
+            if not a.effect.search:
+                continue
+            rest = config.without(a.name)
+            if surrogate and a.effect.stage == "input":
+                # the surrogate's optimum is right to first order: a parabola through three
+                # evaluations of the model itself finishes its first searched parameter (each
+                # costs a full model run; a shape parameter keeps the surrogate's value)
+                nl = parabola(problem, rest, coefs, names, a.effect, dict(a.nl))
+            elif a.effect.lookahead:
+                # a delay's optimum moves as the force effects come in, and a warm start from an
+                # early step can sit in its old basin (a dead time found as a short pure lag):
+                # its whole grid is searched again, the current values added to it
+                grids = {p.name: tuple(sorted({*p.grid, float(a.nl[p.name])})) for p in a.effect.search}
+                nl, _ = search(s, problem, rest, coefs, names, a.effect, grids=grids)
+            else:
+                nl, _ = search(s, problem, rest, coefs, names, a.effect, start=dict(a.nl))
+            config = rest.with_effect(Active(a.effect, nl))
+    finally:
+        problem.surrogate_search = surrogate
+    current = problem.fit(config, coefs, names)
+    return config, current
+
+
+def drop_refused(s: SelectionSettings, problem, config, names, current, steps, table):
+    """Drop effects whose refined searched values are refused or implausible, refining the rest each time.
+
+    A candidate is judged with the values of its step; the final refinement moves them (a mode
+    taken at zeta 0.27 beside an 11 ms lag refined to zeta 0.62 with a 25 ms dead time's
+    remainder in it). Such an effect is another effect in disguise and held the others where
+    they fitted around it: it goes *before* the others are final, and they are refined again.
+    The selection record (``table``) keeps a row saying so.
+    """
+    table = list(table)
+    while True:
+        why = {a.name: a.effect.refusal(dict(a.nl), s) or a.effect.implausible(dict(a.nl))
+               for a in config.actives if a.effect.search}
+        bad = [n for n, w in why.items() if w]
+        if not bad:
+            return config, names, current, steps, table
+        label = ", ".join(f"{k}={v:.3g}" for k, v in next(a for a in config.actives if a.name == bad[0]).nl.items())
+        table.append({"effect": bad[0], "label": f"{bad[0]}({label})", "t": 0.0, "p": 1.0, "llr": 0.0,
+                      "max_gain": 0.0, "ok": False, "note": f"dropped after the final refinement: {why[bad[0]]}"})
+        config = config.without(bad[0])
+        names = [n for n in names if not n.startswith(bad[0] + ".")]
+        steps = [st for st in steps if st.candidate.effect.name != bad[0]]
+        current = problem.fit(config, current.coefs(), names)
+        if any(a.effect.search for a in config.actives):
+            config, current = refine(s, problem, config, current.coefs(), names, current)
+
+
+def backward_check(s: SelectionSettings, problem, config, names, current, steps):
+    """Drop effects that no longer earn their place once the others are final (collinear partners).
+
+    Each effect, weakest first, is removed and the rest refitted; if the held-out test no
+    longer clears the claim criteria for putting it back, it goes.
+    """
+    hac = problem.settings.hac_lags
+    changed = True
+    while changed and len(config.actives) > 1:
+        changed = False
+        level = s.alpha / len(config.actives)
+        verdicts = []
+        for a in config.actives:
+            rest = config.without(a.name)
+            rnames = [n for n in names if not n.startswith(a.name + ".")]
+            f, after = problem.fit(rest, current.coefs(), rnames), current
+            jn = a.effect.judged_as(dict(a.nl))
+            if jn is not None:
+                # judged as at its step: beside its nuisance, against the nuisance alone
+                after = problem.fit(config.with_effect(Active(a.effect, jn)), current.coefs(), names)
+                nulls = a.effect.null_variants(jn)
+                if nulls:
+                    f = problem.fit(config.with_effect(Active(a.effect, nulls[0])), current.coefs(), names)
+            test, gain = judge(f, after, after.grams, hac)
+            verdicts.append((test["llr"], a, rnames, test, gain))
+        llr, a, rnames, test, gain = min(verdicts, key=lambda v: v[0])
+        if test["p"] >= level or gain.max() < s.min_gain:
+            config = config.without(a.name)
+            names = rnames
+            current = problem.fit(config, current.coefs(), names)
+            steps = [st for st in steps if st.candidate.effect.name != a.name]
+            changed = True
+    return config, names, current, steps

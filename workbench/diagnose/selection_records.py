@@ -1,0 +1,120 @@
+"""Records of the forward selection: its settings, a fitted candidate, an accepted step, the result.
+
+:class:`SelectionSettings` holds the knobs of ``pipelines/diagnose.yaml`` section ``selection``;
+:class:`Candidate` is one effect (or linear pair) fitted at one step, with its held-out test and
+verdict; :class:`Step` an accepted candidate with what it beat; :class:`SelectionResult` the chosen
+configuration. :func:`record_row` is a candidate's line in the selection record (``diagnosis.json``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from workbench.diagnose import lsq
+from workbench.diagnose.chain import Active, Configuration
+from workbench.diagnose.effects.base import Effect
+
+
+@dataclass(frozen=True)
+class SelectionSettings:
+    """Selection knobs (``pipelines/diagnose.yaml`` section ``selection``)."""
+
+    alpha: float = 0.01
+    min_gain: float = 0.02
+    max_effects: int = 8
+    #: entries of crosstalk/drift kept when significant at this level (Bonferroni over entries)
+    prune_alpha: float = 0.001
+    #: a runner-up reaching this share of the winner's held-out gain is reported as an alternative
+    ambiguity_ratio: float = 0.7
+    refine: bool = True
+    #: half-width of the tone-frequency search around a residual peak (Hz)
+    tone_window_hz: float = 0.12
+    #: Nelder-Mead evaluations per nonlinear parameter in refinements
+    refine_evals: int = 12
+    #: tone candidates tried per step (the strongest residual lines)
+    max_peaks: int = 2
+    #: half-width (log units) of a warm-started 1-D search around the last optimum
+    warm_window: float = 0.7
+    #: also try linear effects two at a time (each may hide the other), claimed when the pair's
+    #: held-out gain is at least ``pair_margin`` times its better member's alone
+    pairs: bool = True
+    pair_margin: float = 1.5
+    #: a fitted structural mode damped more than this is a delay in disguise, not a mount mode
+    #: (mount and sting modes are lightly damped, zeta << 0.3)
+    max_mode_zeta: float = 0.3
+    #: a flow tone may leave at most this share of its line's excess power (above the floor)
+    tone_line_left: float = 0.4
+    #: a claim needs its 95 % interval clear of zero (z = 1.96) on at least one magnitude parameter
+    interval_z: float = 1.96
+    #: greedy paths followed besides the main one: a look-ahead effect (``Effect.lookahead``, a servo
+    #: delay) acceptable at a step but passed over is accepted there and the selection goes on; the
+    #: path with the better final held-out fit (significant at ``alpha``) wins. 0: greedy only
+    lookahead_branches: int = 1
+    #: re-search a chosen look-ahead effect's searched values (a servo's delay) each time another effect comes
+    #: in, and go on selecting once the final refinement has moved them (an effect the held value hid)
+    follow_lookahead: bool = True
+
+
+@dataclass
+class Candidate:
+    """One candidate effect fitted in one step."""
+
+    effect: Effect
+    active: Active
+    config: Configuration
+    names: list[str]
+    fit: lsq.Fit
+    test: dict = field(default_factory=dict)
+    gain_c: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    profile: dict | None = None
+    ok: bool = False
+    note: str = ""
+    #: a second linear effect claimed together with this one (each may hide the other alone)
+    partner: Effect | None = None
+    #: fitted through the expensive model's surrogate (refitted with the model before a claim)
+    surrogate: bool = False
+
+    @property
+    def label(self) -> str:
+        """Name, with the searched values."""
+        nl = ", ".join(f"{k}={v:.3g}" for k, v in self.active.nl.items())
+        own = f"{self.effect.name}({nl})" if nl else self.effect.name
+        return f"{own} + {self.partner.name}" if self.partner is not None else own
+
+    @property
+    def effects(self) -> list[Effect]:
+        """The effect, and its partner if any."""
+        return [self.effect] + ([self.partner] if self.partner is not None else [])
+
+
+@dataclass
+class Step:
+    """An accepted effect with its test and the alternatives it beat."""
+
+    candidate: Candidate
+    mse_before: np.ndarray
+    mse_after: np.ndarray
+    table: list[dict]
+    alternatives: list[str]
+    #: effects the held-out data cannot tell apart from this one (winner vs runner-up not significant)
+    ambiguous_with: list[str] = field(default_factory=list)
+
+
+@dataclass
+class SelectionResult:
+    """The chosen configuration, its fit and the record of every step."""
+
+    config: Configuration
+    names: list[str]
+    fit: lsq.Fit
+    steps: list[Step]
+    last_table: list[dict]
+
+
+def record_row(c: Candidate) -> dict:
+    """A candidate's line in the selection record."""
+    return {"effect": c.effect.name, "label": c.label + (" (surrogate)" if c.surrogate else ""), "t": c.test["t"],
+            "p": c.test["p"], "llr": c.test["llr"], "max_gain": float(c.gain_c.max()), "ok": c.ok, "note": c.note}
+

@@ -1,0 +1,149 @@
+"""Nonlinear parameters of one effect: a grid search and a local refinement that wrap the linear fit.
+
+:func:`search` minimises the training SSE over an effect's searched parameters (a lag's time
+constant, a tone's frequency), the linear terms refitted at every value: a grid (or a warm start)
+then a bounded 1-D search or Nelder-Mead in (log) coordinates. :func:`parabola` finishes a
+parameter with three fits of an expensive model; :func:`snap` and :func:`around` are the grids
+they search on.
+"""
+
+from __future__ import annotations
+
+from itertools import product
+
+import numpy as np
+from scipy import optimize
+
+from workbench.diagnose import lsq
+from workbench.diagnose.chain import Active, Configuration
+from workbench.diagnose.effects.base import Effect
+from workbench.diagnose.selection_records import SelectionSettings
+
+
+def search(s: SelectionSettings, problem, config: Configuration, coefs: dict, names: list[str], effect: Effect,
+           grids: dict[str, tuple] | None = None, start: dict | None = None) -> tuple[dict, dict]:
+    """Nonlinear parameters of ``effect`` minimising the training SSE (linear terms refitted each time)."""
+    params = effect.search
+    pnames = [p.name for p in params]
+    w = problem.weights
+    hac = problem.settings.hac_lags
+    cache: dict[tuple, float] = {}
+
+    def objective(values) -> float:
+        key = tuple(round(float(v), 10) for v in values)
+        if key not in cache:
+            nl = dict(zip(pnames, key, strict=False))
+            cfg = config.with_effect(Active(effect, nl))
+            extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
+            gr = problem.grams(cfg, coefs, names + extra, sets="search")
+            cache[key] = float(lsq.fit(gr, w, hac).sse_block.sum())
+        return cache[key]
+
+    warm = start is not None and grids is None
+    if warm:
+        best = [start[p] for p in pnames]
+    else:
+        axes = [grids[p.name] if grids and p.name in grids else p.grid for p in params]
+        points = list(product(*axes))
+        vals = [objective(pt) for pt in points]
+        best = list(points[int(np.argmin(vals))])
+    out = _refine_locally(s, objective, params, best, grids, warm)
+    if objective(out) > objective(best):
+        out = best
+    profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values())}
+    return effect.searched(dict(zip(pnames, out, strict=False)), problem, config, coefs, names), profile
+
+
+def _refine_locally(s: SelectionSettings, objective, params, best: list, grids: dict | None, warm: bool) -> list[float]:
+    """Local refinement from ``best`` in (log) coordinates, clipped to the bounds: bounded 1-D search or Nelder-Mead."""
+    pnames = [p.name for p in params]
+    logs = [p.log for p in params]
+    lo = np.array([np.log(p.bounds[0]) if p.log else p.bounds[0] for p in params])
+    hi = np.array([np.log(p.bounds[1]) if p.log else p.bounds[1] for p in params])
+
+    def to_x(v):
+        return np.array([np.log(max(x, 1e-300)) if lg else x for x, lg in zip(v, logs, strict=False)])
+
+    def from_x(x):
+        x = np.clip(x, lo, hi)
+        return [float(np.exp(v)) if lg else float(v) for v, lg in zip(x, logs, strict=False)]
+
+    x0 = to_x(best)
+    if len(params) == 1:
+        step = 0.25 if logs[0] else max(0.02 * abs(x0[0]), 0.01)
+        if warm:
+            step = s.warm_window if logs[0] else max(0.2 * abs(x0[0]), 0.05)
+        if grids and pnames[0] in grids and len(grids[pnames[0]]) > 1:
+            step = float(np.diff(grids[pnames[0]]).mean())
+        res = optimize.minimize_scalar(lambda x: objective(from_x(np.array([x]))),
+                                       bounds=(max(lo[0], x0[0] - step), min(hi[0], x0[0] + step)),
+                                       method="bounded",
+                                       options={"xatol": 0.005 if logs[0] else 5e-4,
+                                                "maxiter": s.refine_evals})
+        return from_x(np.array([res.x]))
+    simplex = [x0] + [x0 + np.eye(len(x0))[i] * (0.3 if logs[i] else 0.1 * max(abs(x0[i]), 0.5))
+                      for i in range(len(x0))]
+    res = optimize.minimize(lambda x: objective(from_x(x)), x0, method="Nelder-Mead",
+                            options={"initial_simplex": np.array(simplex),
+                                     "maxfev": s.refine_evals * len(x0) * 2,
+                                     "xatol": 1e-3, "fatol": 1e-9})
+    return from_x(res.x)
+
+
+def parabola(problem, config, coefs, names, effect, start: dict) -> dict:
+    """The first searched parameter finished by a parabola through three values around ``start`` (others kept).
+
+    Log-scaled parameters (a lag) at start x exp(-0.12, 0, 0.12); others at start -+ 0.03.
+    """
+    p = effect.search[0]
+    extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
+
+    def objective(v: float) -> float:
+        cfg = config.with_effect(Active(effect, {**start, p.name: v}))
+        gr = problem.grams(cfg, coefs, names + extra, sets="search")
+        return float(lsq.fit(gr, problem.weights, problem.settings.hac_lags).sse_block.sum())
+
+    v0 = float(start[p.name])
+    if p.log and v0 <= 0:
+        return start
+    width = 0.12 if p.log else 0.03
+    x0 = np.log(v0) if p.log else v0
+    xs = x0 + np.array([-width, 0.0, width])
+
+    def value(x: float) -> float:
+        return float(np.clip(np.exp(x) if p.log else x, *p.bounds))
+
+    ys = np.array([objective(value(x)) for x in xs])
+    best = value(xs[int(np.argmin(ys))])
+    vx = _parabola_min(xs, ys)
+    if vx is not None and abs(vx - x0) <= 2 * width:
+        v = value(vx)
+        if objective(v) < ys.min():
+            best = v
+    return {**start, p.name: best}
+
+
+def around(effect: Effect, nl: dict) -> dict[str, tuple]:
+    """A small grid around an effect's searched values: each value and its neighbours on the effect's own grid."""
+    out = {}
+    for p in effect.search:
+        v = float(nl.get(p.name, np.median(p.grid)))
+        grid = sorted({*p.grid, v})
+        i = grid.index(v)
+        out[p.name] = tuple(grid[max(i - 1, 0): i + 2])
+    return out
+
+
+def snap(v: float, p) -> float:
+    """A searched value on a coarse grid (2 % steps in log, 0.005 otherwise), inside its bounds."""
+    if p.log and v > 0:
+        v = float(np.exp(np.round(np.log(v) / 0.02) * 0.02))
+    else:
+        v = float(np.round(v / 0.005) * 0.005)
+    return float(np.clip(v, *p.bounds))
+
+
+def _parabola_min(x: np.ndarray, y: np.ndarray) -> float | None:
+    """Vertex of the parabola through three points (None when it opens downwards)."""
+    a, b, _ = np.polyfit(x, y, 2)
+    return float(-b / (2 * a)) if a > 0 else None
