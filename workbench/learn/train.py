@@ -87,26 +87,19 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
     ``run_id`` and ``model_version``. Nothing is written to disk: the caller writes ``card``.
     """
     import lightning.pytorch as pl
-    from lightning.pytorch.callbacks import EarlyStopping
 
-    from workbench.hydro.ef import EmpiricalFormula
     from workbench.learn.callbacks import BestWeights, EpochLog
-    from workbench.learn.datamodule import WindowDataModule, prepare_data
+    from workbench.learn.datamodule import WindowDataModule
     from workbench.learn.legmodel import LearnedLegModel
-    from workbench.learn.metrics import score_runs
     from workbench.learn.module import WrenchRegressor
     from workbench.learn.nets import build_net
-    from workbench.learn.windows import read_table
-    from workbench.tracking import log_metrics, log_params, run_tags
+    from workbench.tracking import log_metrics, run_tags
 
     cfg = cfg.validate()
     _quiet_lightning()
     hybrid = cfg.model.variant == "ef_residual"
     t_start = time.perf_counter()
-    if prepared is None:
-        prepared = prepare_data(read_table(cfg.data.paths), cfg.data, need_ef=hybrid)
-    elif hybrid and prepared.base is None:
-        prepared = prepare_data(prepared.table, cfg.data, need_ef=True, split=prepared.split)
+    prepared = _prepared_data(cfg, prepared, hybrid)
     threads = apply_torch_threads(cfg.trainer.torch_threads)
     pl.seed_everything(cfg.trainer.seed, workers=False, verbose=False)
     dm = WindowDataModule(prepared, cfg.data, with_base=hybrid, seed=cfg.trainer.seed)
@@ -119,35 +112,13 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
     objects: dict = {"prepared": prepared, "datamodule": dm, "module": module}
     with _mlflow_run(cfg, tags, default_run_name(cfg, campaigns, kind, extra_tags), parent_run_id) as run:
         if run is not None:
-            import mlflow
-
             objects["run_id"] = run.info.run_id
-            log_params({**cfg.to_dict(), "n_train_windows": len(dm.ends["train"]),
-                        "n_val_windows": len(dm.ends["val"]), "n_test_windows": len(dm.ends["test"]),
-                        "windows_per_epoch": dm.windows_per_epoch(), "torch_threads_used": threads or "default",
-                        **{f"n_{k}_sets": v for k, v in prepared.split.counts().items()}})
-            mlflow.log_dict(prepared.split.to_dict(prepared.table), "split.json")
+            _log_inputs(cfg, dm, prepared, threads)
         log = EpochLog(cfg.trainer.max_epochs, report, mlflow_run=run is not None)
         best = BestWeights()
-        cbs = [log, best, *callbacks]
-        if cfg.trainer.early_stop_patience:
-            cbs.append(EarlyStopping("val_loss", patience=cfg.trainer.early_stop_patience, mode="min"))
-        trainer = pl.Trainer(
-            accelerator="cpu", devices=1, max_epochs=cfg.trainer.max_epochs, logger=False,
-            enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
-            num_sanity_val_steps=0, gradient_clip_val=cfg.optim.grad_clip or None, callbacks=cbs,
-            max_time=timedelta(seconds=cfg.trainer.max_time_s) if cfg.trainer.max_time_s else None,
-        )
+        trainer = _trainer(cfg, [log, best, *callbacks])
         t_fit = time.perf_counter()
-        try:
-            trainer.fit(module, datamodule=dm)
-        except SystemExit:
-            # Lightning turns Ctrl-C (and SIGTERM under workbench.procs) into sys.exit(1) after its
-            # own shutdown: give callers their KeyboardInterrupt back (Optuna fails the trial, the
-            # MLflow run ends KILLED, the CLI says "interrupted")
-            if trainer.interrupted:
-                raise KeyboardInterrupt("training interrupted") from None
-            raise
+        _fit(trainer, module, dm)
         fit_s = time.perf_counter() - t_fit
         best.restore(module)
         stop = stop_reason(trainer, cfg, len(log.history))
@@ -159,19 +130,9 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
                 "trained_windows_per_epoch": dm.windows_per_epoch(), **({"run_id": run.info.run_id} if run else {})}
         model = LearnedLegModel(net, model=cfg.model, seq_len=cfg.data.seq_len, dt_s=prepared.dt_s, norm=prepared.norm,
                                 info=info)
-        wps = [h["windows_per_s"] for h in log.history if h["windows_per_s"] == h["windows_per_s"]]
-        metrics.update({"stop_reason": stop["reason"], "stop_detail": stop["detail"],
-                        "best_val_loss": best.best, "best_epoch": best.best_epoch, "epochs": len(log.history),
-                        "fit_s": fit_s, "total_s": time.perf_counter() - t_start,
-                        "train_windows_per_s": sorted(wps)[len(wps) // 2] if wps else float("nan")})
-        test_runs = prepared.runs("test") if score_test else []
-        if len(test_runs):
-            scored = score_runs(prepared.table, test_runs, {"lstm": model, "ef": EmpiricalFormula()},
-                                skip=cfg.data.seq_len - 1)
-            metrics["test"] = scored
-            metrics["test_mse"] = scored["lstm"]["mse"]
-            metrics["test_r2"] = scored["lstm"]["r2"]
-            metrics["test_nmse"] = sum(1 - v for v in scored["lstm"]["r2"].values()) / 6
+        metrics.update(_fit_metrics(stop, best, log.history, fit_s, t_start))
+        if score_test:
+            metrics.update(_test_metrics(cfg, prepared, model))
         summary = _summary(metrics)
         card = model_card(cfg, model, prepared, summary, log.history, curve=bool(cfg.model_dir))
         objects.update(model=model, history=log.history, card=card)
@@ -181,6 +142,82 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
                 objects.update(_log_model(cfg, run, card, prepared, tags))
     metrics["summary"] = summary
     return metrics, objects
+
+
+def _prepared_data(cfg: LearnConfig, prepared, hybrid: bool):
+    """The data to train on: ``cfg.data.paths`` read and prepared, or ``prepared`` (given the EF base a hybrid needs)."""
+    from workbench.learn.datamodule import prepare_data
+    from workbench.learn.windows import read_table
+
+    if prepared is None:
+        return prepare_data(read_table(cfg.data.paths), cfg.data, need_ef=hybrid)
+    if hybrid and prepared.base is None:
+        return prepare_data(prepared.table, cfg.data, need_ef=True, split=prepared.split)
+    return prepared
+
+
+def _log_inputs(cfg: LearnConfig, dm, prepared, threads) -> None:
+    """Log the configuration, the window and set counts and the split (``split.json``) to the active MLflow run."""
+    import mlflow
+
+    from workbench.tracking import log_params
+
+    log_params({**cfg.to_dict(), "n_train_windows": len(dm.ends["train"]),
+                "n_val_windows": len(dm.ends["val"]), "n_test_windows": len(dm.ends["test"]),
+                "windows_per_epoch": dm.windows_per_epoch(), "torch_threads_used": threads or "default",
+                **{f"n_{k}_sets": v for k, v in prepared.split.counts().items()}})
+    mlflow.log_dict(prepared.split.to_dict(prepared.table), "split.json")
+
+
+def _trainer(cfg: LearnConfig, cbs: list):
+    """The Lightning trainer on the CPU, with ``cbs`` (and early stopping when the configuration asks for it)."""
+    import lightning.pytorch as pl
+    from lightning.pytorch.callbacks import EarlyStopping
+
+    if cfg.trainer.early_stop_patience:
+        cbs.append(EarlyStopping("val_loss", patience=cfg.trainer.early_stop_patience, mode="min"))
+    return pl.Trainer(
+        accelerator="cpu", devices=1, max_epochs=cfg.trainer.max_epochs, logger=False,
+        enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
+        num_sanity_val_steps=0, gradient_clip_val=cfg.optim.grad_clip or None, callbacks=cbs,
+        max_time=timedelta(seconds=cfg.trainer.max_time_s) if cfg.trainer.max_time_s else None,
+    )
+
+
+def _fit(trainer, module, dm) -> None:
+    """``trainer.fit``, with an interruption raised as KeyboardInterrupt."""
+    try:
+        trainer.fit(module, datamodule=dm)
+    except SystemExit:
+        # Lightning turns Ctrl-C (and SIGTERM under workbench.procs) into sys.exit(1) after its
+        # own shutdown: give callers their KeyboardInterrupt back (Optuna fails the trial, the
+        # MLflow run ends KILLED, the CLI says "interrupted")
+        if trainer.interrupted:
+            raise KeyboardInterrupt("training interrupted") from None
+        raise
+
+
+def _fit_metrics(stop: dict, best, history: list[dict], fit_s: float, t_start: float) -> dict:
+    """Why and when training stopped, the best validation loss, timings and the median training throughput."""
+    wps = [h["windows_per_s"] for h in history if h["windows_per_s"] == h["windows_per_s"]]
+    return {"stop_reason": stop["reason"], "stop_detail": stop["detail"],
+            "best_val_loss": best.best, "best_epoch": best.best_epoch, "epochs": len(history),
+            "fit_s": fit_s, "total_s": time.perf_counter() - t_start,
+            "train_windows_per_s": sorted(wps)[len(wps) // 2] if wps else float("nan")}
+
+
+def _test_metrics(cfg: LearnConfig, prepared, model) -> dict:
+    """The model and the EF scored on the held-out test runs (none: no metrics)."""
+    from workbench.hydro.ef import EmpiricalFormula
+    from workbench.learn.metrics import score_runs
+
+    test_runs = prepared.runs("test")
+    if not len(test_runs):
+        return {}
+    scored = score_runs(prepared.table, test_runs, {"lstm": model, "ef": EmpiricalFormula()},
+                        skip=cfg.data.seq_len - 1)
+    return {"test": scored, "test_mse": scored["lstm"]["mse"], "test_r2": scored["lstm"]["r2"],
+            "test_nmse": sum(1 - v for v in scored["lstm"]["r2"].values()) / 6}
 
 
 def stop_reason(trainer, cfg: LearnConfig, epochs: int) -> dict:
