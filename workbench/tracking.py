@@ -160,34 +160,9 @@ def relocate_store(uri: str) -> dict[str, int]:
     if db is None or not db.is_file():
         return {}
     home = (db.parent / ARTIFACTS_DIR).as_uri()
-    changed: dict[str, int] = {}
     con = sqlite3.connect(str(db), timeout=60, isolation_level=None)
     try:
-        tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
-        if "experiments" not in tables:
-            return {}
-        if not any(_foreign_artifacts(loc, home) for (loc,) in con.execute("SELECT artifact_location FROM experiments")):
-            return {}
-        con.execute("BEGIN IMMEDIATE")  # another process relocating at the same moment waits, then finds nothing
-        olds = sorted({loc.rstrip("/") for (loc,) in con.execute("SELECT artifact_location FROM experiments")
-                       if _foreign_artifacts(loc, home)})
-        for old in olds:
-            cur = con.execute("UPDATE experiments SET artifact_location = ? WHERE rtrim(artifact_location, '/') = ?",
-                              (home, old))
-            changed["experiments"] = changed.get("experiments", 0) + cur.rowcount
-            for table, col in (("runs", "artifact_uri"), ("logged_models", "artifact_location"),
-                               ("model_versions", "storage_location"), ("model_versions", "source")):
-                if table not in tables:
-                    continue
-                prefix = old + "/"
-                rows = con.execute(f"SELECT rowid, {col} FROM {table} WHERE substr({col}, 1, ?) = ?",  # noqa: S608
-                                   (len(prefix), prefix)).fetchall()
-                for rowid, value in rows:
-                    new = home + value[len(old):]
-                    if _uri_path(new).exists() or not _uri_path(value).exists():
-                        con.execute(f"UPDATE {table} SET {col} = ? WHERE rowid = ?", (new, rowid))  # noqa: S608
-                        changed[table] = changed.get(table, 0) + 1
-        con.execute("COMMIT")
+        changed = _relocate(con, home)
     except BaseException:
         if con.in_transaction:
             con.execute("ROLLBACK")
@@ -200,6 +175,45 @@ def relocate_store(uri: str) -> dict[str, int]:
         info(f"MLflow store {db} was copied or moved: artifact paths now point at {_uri_path(home)} "
              f"({', '.join(f'{n} {t}' for t, n in sorted(changed.items()))})")
     return changed
+
+
+#: (table, column) of the artifact paths under an experiment's location
+_ARTIFACT_COLUMNS = (("runs", "artifact_uri"), ("logged_models", "artifact_location"),
+                     ("model_versions", "storage_location"), ("model_versions", "source"))
+
+
+def _relocate(con, home: str) -> dict[str, int]:
+    """In one transaction, re-point every foreign experiment and the paths under it at ``home``; rows changed per table."""
+    tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    if "experiments" not in tables:
+        return {}
+    if not any(_foreign_artifacts(loc, home) for (loc,) in con.execute("SELECT artifact_location FROM experiments")):
+        return {}
+    con.execute("BEGIN IMMEDIATE")  # another process relocating at the same moment waits, then finds nothing
+    olds = sorted({loc.rstrip("/") for (loc,) in con.execute("SELECT artifact_location FROM experiments")
+                   if _foreign_artifacts(loc, home)})
+    changed: dict[str, int] = {}
+    for old in olds:
+        cur = con.execute("UPDATE experiments SET artifact_location = ? WHERE rtrim(artifact_location, '/') = ?",
+                          (home, old))
+        changed["experiments"] = changed.get("experiments", 0) + cur.rowcount
+        for table, col in _ARTIFACT_COLUMNS:
+            if table in tables:
+                _repoint_paths(con, table, col, old, home, changed)
+    con.execute("COMMIT")
+    return changed
+
+
+def _repoint_paths(con, table: str, col: str, old: str, home: str, changed: dict[str, int]) -> None:
+    """Re-point ``table.col`` paths under ``old`` at ``home`` where the files were copied along or are gone."""
+    prefix = old + "/"
+    rows = con.execute(f"SELECT rowid, {col} FROM {table} WHERE substr({col}, 1, ?) = ?",  # noqa: S608
+                       (len(prefix), prefix)).fetchall()
+    for rowid, value in rows:
+        new = home + value[len(old):]
+        if _uri_path(new).exists() or not _uri_path(value).exists():
+            con.execute(f"UPDATE {table} SET {col} = ? WHERE rowid = ?", (new, rowid))  # noqa: S608
+            changed[table] = changed.get(table, 0) + 1
 
 
 # -- names and tags ----------------------------------------------------------------------------
