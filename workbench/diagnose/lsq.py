@@ -187,51 +187,12 @@ def fit(gr: Grams, w: np.ndarray, hac_lags: int = 2, fixed: dict[str, float] | N
     # move the fixed coefficients into the right-hand side
     b_adj = bw - np.einsum("nij,j->ni", gw[:, :, :k], theta_fixed)
     train = ~gr.heldout
-    runs = np.unique(gr.run)
-    run_pos = {r: i for i, r in enumerate(runs)}
-    ridx = np.array([run_pos[r] for r in gr.run])
-    nr = len(runs)
-    g_run = np.zeros((nr, k + m, k + m))
-    b_run = np.zeros((nr, k + m))
-    np.add.at(g_run, ridx, gw)
-    np.add.at(b_run, ridx, b_adj)
-    held_run = np.zeros(nr, bool)
-    held_run[ridx[gr.heldout]] = True
+    sums = _run_sums(gr, gw, b_adj)
     fi = np.flatnonzero(free)
-    a_s = np.zeros((len(fi), len(fi)))
-    r_s = np.zeros(len(fi))
-    cinv = {}
-    for i in range(nr):
-        A = g_run[i][np.ix_(fi, fi)]
-        a = b_run[i][fi]
-        if m:
-            B = g_run[i][np.ix_(fi, np.arange(k, k + m))]
-            C = g_run[i][k:, k:]
-            ci = _inv(C)
-            cinv[i] = ci
-            A = A - B @ ci @ B.T
-            a = a - B @ ci @ b_run[i][k:]
-        if not held_run[i]:
-            a_s += A
-            r_s += a
+    a_s, r_s, cinv = _profiled_system(sums, fi, k, m)
     theta = theta_fixed.copy()
     theta[fi] = _solve(a_s, r_s)
-
-    def locals_for(theta):
-        local, local_info = {}, {}
-        if m:
-            for i in range(nr):
-                C = g_run[i][k:, k:]
-                rhs = b_run[i][k:] - g_run[i][k:, fi] @ theta[fi]
-                local[int(runs[i])] = cinv[i] @ rhs
-                local_info[int(runs[i])] = np.diag(C).copy()
-        th_block = np.zeros((len(gr.run), k + m))
-        th_block[:, :k] = theta
-        if m:
-            th_block[:, k:] = np.array([local[int(r)] for r in gr.run])
-        return local, local_info, th_block
-
-    local, local_info, th_block = locals_for(theta)
+    local, local_info, th_block = _per_run_coefs(gr, sums, cinv, fi, k, m, theta)
     prior = {n: v for n, v in (gr.prior or {}).items() if n in gr.names and n not in fixed}
     cov_prior = None
     if prior:
@@ -239,8 +200,83 @@ def fit(gr: Grams, w: np.ndarray, hac_lags: int = 2, fixed: dict[str, float] | N
         # likelihood: posterior precision = C^-1 + D, mean = (C^-1 theta + D mu) / that
         cov_data = _robust_cov(gr, fi, a_s, bw, gw, th_block, train, hac_lags)
         theta, cov_prior = _posterior(theta, fi, cov_data, prior, list(gr.names))
-        local, local_info, th_block = locals_for(theta)
+        local, local_info, th_block = _per_run_coefs(gr, sums, cinv, fi, k, m, theta)
     sse = yyw - 2 * np.einsum("ni,ni->n", th_block, bw) + np.einsum("ni,nij,nj->n", th_block, gw, th_block)
+    sse_c = _sse_by_channel(gr, th_block, k, m)
+    cov_f = cov_prior if cov_prior is not None else _robust_cov(gr, fi, a_s, bw, gw, th_block, train, hac_lags)
+    cov = np.full((k, k), 0.0)
+    cov[np.ix_(fi, fi)] = cov_f
+    return Fit(list(gr.names), theta, local, local_info, cov, np.maximum(sse, 0.0), np.maximum(sse_c, 0.0))
+
+
+@dataclass
+class _RunSums:
+    """Weighted block sums added up per run (the fit's unit for per-run columns)."""
+
+    runs: np.ndarray       # (nr,) campaign run indices, sorted
+    g: np.ndarray          # (nr, K+m, K+m)
+    b: np.ndarray          # (nr, K+m), the fixed coefficients already moved to this side
+    held: np.ndarray       # (nr,) bool: a held-out run
+
+
+def _run_sums(gr: Grams, gw: np.ndarray, b_adj: np.ndarray) -> _RunSums:
+    """The weighted sums of every block added into its run's."""
+    runs = np.unique(gr.run)
+    run_pos = {r: i for i, r in enumerate(runs)}
+    ridx = np.array([run_pos[r] for r in gr.run])
+    nr = len(runs)
+    g_run = np.zeros((nr,) + gw.shape[1:])
+    b_run = np.zeros((nr,) + b_adj.shape[1:])
+    np.add.at(g_run, ridx, gw)
+    np.add.at(b_run, ridx, b_adj)
+    held_run = np.zeros(nr, bool)
+    held_run[ridx[gr.heldout]] = True
+    return _RunSums(runs, g_run, b_run, held_run)
+
+
+def _profiled_system(sums: _RunSums, fi: np.ndarray, k: int, m: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Normal equations of the free shared coefficients over the training runs, per-run columns profiled out.
+
+    Returns the matrix, the right-hand side and, per run, the inverse of its per-run block (empty without
+    per-run columns).
+    """
+    a_s = np.zeros((len(fi), len(fi)))
+    r_s = np.zeros(len(fi))
+    cinv = {}
+    for i in range(len(sums.runs)):
+        A = sums.g[i][np.ix_(fi, fi)]
+        a = sums.b[i][fi]
+        if m:
+            B = sums.g[i][np.ix_(fi, np.arange(k, k + m))]
+            C = sums.g[i][k:, k:]
+            ci = _inv(C)
+            cinv[i] = ci
+            A = A - B @ ci @ B.T
+            a = a - B @ ci @ sums.b[i][k:]
+        if not sums.held[i]:
+            a_s += A
+            r_s += a
+    return a_s, r_s, cinv
+
+
+def _per_run_coefs(gr: Grams, sums: _RunSums, cinv: dict, fi: np.ndarray, k: int, m: int, theta: np.ndarray):
+    """Per-run coefficients given the shared ``theta``, their information, and every block's coefficient row."""
+    local, local_info = {}, {}
+    if m:
+        for i in range(len(sums.runs)):
+            C = sums.g[i][k:, k:]
+            rhs = sums.b[i][k:] - sums.g[i][k:, fi] @ theta[fi]
+            local[int(sums.runs[i])] = cinv[i] @ rhs
+            local_info[int(sums.runs[i])] = np.diag(C).copy()
+    th_block = np.zeros((len(gr.run), k + m))
+    th_block[:, :k] = theta
+    if m:
+        th_block[:, k:] = np.array([local[int(r)] for r in gr.run])
+    return local, local_info, th_block
+
+
+def _sse_by_channel(gr: Grams, th_block: np.ndarray, k: int, m: int) -> np.ndarray:
+    """Unweighted SSE per block and channel of the coefficient rows ``th_block``."""
     sse_c = np.zeros_like(gr.yy)
     for c in range(6):
         idx = np.concatenate([gr.chan_cols[c], np.arange(k, k + m)]).astype(int)
@@ -250,10 +286,7 @@ def fit(gr: Grams, w: np.ndarray, hac_lags: int = 2, fixed: dict[str, float] | N
         tc = th_block[:, idx]
         sse_c[:, c] = (gr.yy[:, c] - 2 * np.einsum("ni,ni->n", tc, gr.b[c])
                        + np.einsum("ni,nij,nj->n", tc, gr.G[c], tc))
-    cov_f = cov_prior if cov_prior is not None else _robust_cov(gr, fi, a_s, bw, gw, th_block, train, hac_lags)
-    cov = np.full((k, k), 0.0)
-    cov[np.ix_(fi, fi)] = cov_f
-    return Fit(list(gr.names), theta, local, local_info, cov, np.maximum(sse, 0.0), np.maximum(sse_c, 0.0))
+    return sse_c
 
 
 def _robust_cov(gr: Grams, fi, a_s, bw, gw, th_block, train, hac_lags: int) -> np.ndarray:
