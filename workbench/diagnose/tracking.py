@@ -65,29 +65,48 @@ def log_trajectory_diagnosis(doc: dict, diagnoses: dict, out_dir: str | Path, se
     tags = run_tags(kind="diagnose-trajectory", campaigns=[trials], trials=str(doc.get("trials")),
                     model=",".join(models) or "none", effects=",".join(effects) or "none",
                     unexplained=",".join(unexplained) or "none")
+    params = _trajectory_params(doc, models, settings)
+    metrics = _trajectory_metrics(doc, models, diagnoses)
+    with tracked_run(name=run_name("diagnose-trajectory", ",".join(models) or None, [trials]), tags=tags,
+                     experiment=EXPERIMENT, tracking_uri_=tracking_uri, params=params) as run:
+        log_metrics(metrics)
+        log_artifacts(folders={"": out_dir})
+        return run.info.run_id
+
+
+def _trajectory_params(doc: dict, models: dict, settings) -> dict:
+    """The trajectory run's params: trials, gaits, reference, wall margin, each model's spec and the settings."""
     params: dict = {"trials": str(doc.get("trials")), "gaits": str(doc.get("gaits")),
                     "reference": str(doc.get("reference")), "wall_margin_m": str(doc.get("wall_margin_m")),
                     "model": {lab: str(m.get("spec")) for lab, m in models.items()}}
     if settings is not None and dataclasses.is_dataclass(settings):
         params["settings"] = dataclasses.asdict(settings)
+    return params
+
+
+def _trajectory_metrics(doc: dict, models: dict, diagnoses: dict) -> dict[str, float]:
+    """The trajectory run's metrics: runtime, each model's errors, each diagnosis's errors and effect parameters."""
     metrics: dict[str, float] = {"runtime_s": float(doc.get("runtime_s") or 0.0)}
     for lab, m in models.items():
         for key in ("rms_position_m", "rms_heading_deg", "mean_final_position_m", "n_trials", "sim_seconds"):
             if isinstance(m.get(key), (int, float)):
                 metrics[f"{key}.{lab}"] = float(m[key])
     for lab, d in diagnoses.items():
-        j = d.to_json()
-        for key in ("rms_position_error_m", "rms_heading_error_deg"):
-            for when in ("before", "after"):
-                v = (j.get(key) or {}).get(when)
-                if isinstance(v, float):
-                    metrics[f"{key}.{when}.{lab}"] = v
-        for e in d.effects:
-            for k, v in e["params"].items():
-                if isinstance(v, float):
-                    metrics[f"effect.{lab}.{e['name']}.{k}"] = v
-    with tracked_run(name=run_name("diagnose-trajectory", ",".join(models) or None, [trials]), tags=tags,
-                     experiment=EXPERIMENT, tracking_uri_=tracking_uri, params=params) as run:
-        log_metrics(metrics)
-        log_artifacts(folders={"": out_dir})
-        return run.info.run_id
+        metrics.update(_diagnosis_metrics(lab, d))
+    return metrics
+
+
+def _diagnosis_metrics(lab: str, d) -> dict[str, float]:
+    """One trajectory diagnosis's RMS errors before and after, and its effects' parameters, under label ``lab``."""
+    metrics: dict[str, float] = {}
+    j = d.to_json()
+    for key in ("rms_position_error_m", "rms_heading_error_deg"):
+        for when in ("before", "after"):
+            v = (j.get(key) or {}).get(when)
+            if isinstance(v, float):
+                metrics[f"{key}.{when}.{lab}"] = v
+    for e in d.effects:
+        for k, v in e["params"].items():
+            if isinstance(v, float):
+                metrics[f"effect.{lab}.{e['name']}.{k}"] = v
+    return metrics
