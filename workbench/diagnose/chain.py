@@ -309,6 +309,27 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
         return lowpass(x, ctx.dt_s, axis=-2) if lowpass is not None else x
 
     base = _base(ctx, rs, inputs, in_key, cache, lp)
+    base, names, cols, sup, lnames, lcols = _force_stage(config, ctx, in_key, cache, lp, only, base)
+    if config.stage("filter"):
+        base, cols, lcols = _filter_stage(config, ctx, in_key, cache, only, base, cols, lcols)
+    prediction = base.copy()
+    for n, c in zip(names, cols, strict=False):
+        v = coefs.get(n, 0.0)
+        if v:
+            prediction += v * c
+    d = Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)
+    ctx.coefs = coefs  # the current coefficients, for a sensor effect's known part (Terms.fit_offset)
+    for a in config.stage("sensor"):
+        _add_sensor_terms(d, a, a.effect.sensor_terms(ctx, a.nl, prediction), only)
+    return d
+
+
+def _force_stage(config: Configuration, ctx: Context, in_key: tuple, cache: dict, lp, only: set[str] | None,
+                 base: np.ndarray) -> tuple:
+    """The force effects' fixed parts added to ``base`` (in place) and their columns kept by ``only``.
+
+    Returns ``(base, names, cols, support, local_names, local_cols)``.
+    """
     names, cols, sup, lnames, lcols = [], [], [], [], []
     for a in config.stage("force"):
         t_names, t_cols, t_sup, fixed, t_lnames, t_local = _force_terms(a, ctx, in_key, cache, lp)
@@ -321,27 +342,22 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
                 sup.append(np.asarray(sp, bool))
         lnames += [f"{a.name}.{n}" for n in t_lnames]
         lcols += list(t_local)
-    if config.stage("filter"):
-        # the same stack object for the same force stage: a mode search reuses its interpolation
-        skey = ("stack", in_key, _key(config.stage("force")), None if only is None else tuple(sorted(only)))
-        if skey not in cache:
-            for k in [k for k in cache if k[0] == "stack"]:
-                del cache[k]
-            cache[skey] = np.stack([base, *cols, *lcols])
-        stack = cache[skey]
-        for a in config.stage("filter"):
-            stack = a.effect.filter_wrench(stack, ctx.dt_s, a.nl)
-        base, cols, lcols = stack[0], list(stack[1:1 + len(names)]), list(stack[1 + len(names):])
-    prediction = base.copy()
-    for n, c in zip(names, cols, strict=False):
-        v = coefs.get(n, 0.0)
-        if v:
-            prediction += v * c
-    d = Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)
-    ctx.coefs = coefs  # the current coefficients, for a sensor effect's known part (Terms.fit_offset)
-    for a in config.stage("sensor"):
-        _add_sensor_terms(d, a, a.effect.sensor_terms(ctx, a.nl, prediction), only)
-    return d
+    return base, names, cols, sup, lnames, lcols
+
+
+def _filter_stage(config: Configuration, ctx: Context, in_key: tuple, cache: dict, only: set[str] | None,
+                  base: np.ndarray, cols: list, lcols: list) -> tuple[np.ndarray, list, list]:
+    """Base, shared and per-run columns passed through the filter effects (as one stack, cached per force stage)."""
+    # the same stack object for the same force stage: a mode search reuses its interpolation
+    skey = ("stack", in_key, _key(config.stage("force")), None if only is None else tuple(sorted(only)))
+    if skey not in cache:
+        for k in [k for k in cache if k[0] == "stack"]:
+            del cache[k]
+        cache[skey] = np.stack([base, *cols, *lcols])
+    stack = cache[skey]
+    for a in config.stage("filter"):
+        stack = a.effect.filter_wrench(stack, ctx.dt_s, a.nl)
+    return stack[0], list(stack[1:1 + len(cols)]), list(stack[1 + len(cols):])
 
 
 def _add_sensor_terms(d: Design, a: Active, t, only: set[str] | None) -> None:
