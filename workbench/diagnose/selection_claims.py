@@ -101,7 +101,8 @@ def _judged(problem, c: Candidate, coefs) -> Candidate:
         return c
     act = Active(c.effect, nl)
     cfg = c.config.with_effect(act)
-    return Candidate(c.effect, act, cfg, c.names, problem.fit(cfg, coefs, c.names))
+    names = c.names + [f"{c.effect.name}.{n}" for n in c.effect.judging_names(nl, c.names)]
+    return Candidate(c.effect, act, cfg, names, problem.fit(cfg, coefs, names))
 
 
 def _null_correction(problem, cand: Candidate, coefs, current: lsq.Fit) -> np.ndarray | None:

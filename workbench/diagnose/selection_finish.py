@@ -92,10 +92,12 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps)
             jn = a.effect.judged_as(dict(a.nl))
             if jn is not None:
                 # judged as at its step: beside its nuisance, against the nuisance alone
-                after = problem.fit(config.with_effect(Active(a.effect, jn)), current.coefs(), names)
+                own = [n for n in names if n.startswith(a.name + ".")]
+                jnames = names + [f"{a.name}.{n}" for n in a.effect.judging_names(jn, own)]
+                after = problem.fit(config.with_effect(Active(a.effect, jn)), current.coefs(), jnames)
                 nulls = a.effect.null_variants(jn)
                 if nulls:
-                    f = problem.fit(config.with_effect(Active(a.effect, nulls[0])), current.coefs(), names)
+                    f = problem.fit(config.with_effect(Active(a.effect, nulls[0])), current.coefs(), jnames)
             test, gain = judge(f, after, after.grams, hac)
             verdicts.append((test["llr"], a, rnames, test, gain))
         llr, a, rnames, test, gain = min(verdicts, key=lambda v: v[0])

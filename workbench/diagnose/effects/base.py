@@ -283,6 +283,15 @@ class Effect:
         """
         return None
 
+    def judging_names(self, nl: dict, names: list[str]) -> list[str]:
+        """Shared columns the effect adds under its judging values ``nl`` beside its kept entries ``names`` (qualified).
+
+        Fitted on the training runs with the entries and judged on held-out runs like them, and
+        kept in the null variants (a crosstalk judged beside the other channels' residuals); the
+        model never holds them. Names without the effect's prefix; none by default.
+        """
+        return []
+
     # ------------------------------------------------------------- the evidence
     def hint(self, ev, params: dict) -> str:
         """The clause of residual evidence (:class:`~workbench.diagnose.evidence.Evidence`) that points here."""
