@@ -197,47 +197,65 @@ def _fmt(v) -> str:
 def markdown(d, figures: dict[str, str], truth: dict | None = None) -> str:
     """The report text."""
     j = d.to_json()
-    lines = [f"# Diagnosis of `{d.model}` on `{d.campaign_id}`", "",
-             f"{len(d.train_runs)} training runs, {len(d.heldout_runs)} held-out runs (chosen from the motion "
-             f"parameters, every flow speed of a set on the same side); {d.runtime_s:.1f} s.", "",
-             "## Error on held-out runs", "", "| channel | MSE before | MSE after | removed |", "|---|---|---|---|"]
-    if d.reference:
-        r = d.reference
-        lines[4:4] = [f"Against reference campaign `{r['campaign']}`: the base model's stroke-locked misfit there "
-                      f"({r['matched_runs']} runs matched exactly, {r['nearest_neighbour_runs']} by nearest "
-                      "parameters) is part of the prediction, so only what changed since is diagnosed.", ""]
-    for c in CHANNELS:
-        b, a = d.mse_before[c], d.mse_after[c]
-        lines.append(f"| {c} | {b:.4g} | {a:.4g} | {(1 - a / b) if b > 0 else 0:.0%} |")
+    lines = _error_table(d)
     lines += ["", "## Effects claimed (best first)", ""]
     if not d.effects:
         lines.append("None: no candidate beat the noise on held-out runs.")
     for e in d.effects:
-        ej = e.to_json()
-        lines += [f"### {e.name}", "", f"*{e.evidence}*", "",
-                  f"Held-out MSE reduction (mean over channels, as a share of the model's error): "
-                  f"**{e.heldout_mse_reduction:.1%}**; channels: {', '.join(e.channels) or '-'}.", "",
-                  "| parameter | value | std. error | 95 % interval | virtual truth |", "|---|---|---|---|---|"]
-        true = (truth or {}).get(e.name) or {}
-        for k, v in e.params.items():
-            ci = ej["ci95"].get(k)
-            lines.append(f"| {k} | {_fmt(v)} | {_fmt(e.stderr.get(k))} | "
-                         f"{'-' if not ci else f'[{_fmt(ci[0])}, {_fmt(ci[1])}]'} | {_fmt(true.get(k))} |")
-        lines.append("")
-        for n in e.notes:
-            lines.append(f"- {n}")
-        if e.name in figures:
-            lines += ["", f"![{e.name}]({figures[e.name]})", ""]
+        lines += _effect_section(e, figures, (truth or {}).get(e.name) or {})
     lines += ["## Unexplained", ""]
     if not d.unexplained:
         lines.append("Nothing: the residual left is consistent with the rig's noise.")
     for u in d.unexplained:
         f = f" at {u.frequency_hz:.2f} Hz" if u.frequency_hz is not None else ""
         lines.append(f"- **{u.kind}**{f} in {', '.join(u.channels)}: {u.evidence}")
-    eb, ea = j["evidence_before"], j["evidence_after"]
-    lines += ["", "## Residual evidence", "",
-              "| channel | stroke-locked share before | after | power at gait harmonics / noise before | after |"
-              " trend t before | after |", "|---|---|---|---|---|---|---|"]
+    lines += _evidence_section(j["evidence_before"], j["evidence_after"], figures)
+    lines += _selection_section(j["selection"])
+    lines += ["Method and effect library: docs/diagnose.md.", ""]
+    return "\n".join(lines)
+
+
+def _error_table(d) -> list[str]:
+    """Title, the runs, the reference campaign if any, and the held-out error per channel before and after."""
+    lines = [f"# Diagnosis of `{d.model}` on `{d.campaign_id}`", "",
+             f"{len(d.train_runs)} training runs, {len(d.heldout_runs)} held-out runs (chosen from the motion "
+             f"parameters, every flow speed of a set on the same side); {d.runtime_s:.1f} s.", ""]
+    if d.reference:
+        r = d.reference
+        lines += [f"Against reference campaign `{r['campaign']}`: the base model's stroke-locked misfit there "
+                  f"({r['matched_runs']} runs matched exactly, {r['nearest_neighbour_runs']} by nearest "
+                  "parameters) is part of the prediction, so only what changed since is diagnosed.", ""]
+    lines += ["## Error on held-out runs", "", "| channel | MSE before | MSE after | removed |", "|---|---|---|---|"]
+    for c in CHANNELS:
+        b, a = d.mse_before[c], d.mse_after[c]
+        lines.append(f"| {c} | {b:.4g} | {a:.4g} | {(1 - a / b) if b > 0 else 0:.0%} |")
+    return lines
+
+
+def _effect_section(e, figures: dict[str, str], true: dict) -> list[str]:
+    """One claimed effect: its evidence, held-out reduction, parameter table (beside ``true``), notes and figure."""
+    ej = e.to_json()
+    lines = [f"### {e.name}", "", f"*{e.evidence}*", "",
+             f"Held-out MSE reduction (mean over channels, as a share of the model's error): "
+             f"**{e.heldout_mse_reduction:.1%}**; channels: {', '.join(e.channels) or '-'}.", "",
+             "| parameter | value | std. error | 95 % interval | virtual truth |", "|---|---|---|---|---|"]
+    for k, v in e.params.items():
+        ci = ej["ci95"].get(k)
+        lines.append(f"| {k} | {_fmt(v)} | {_fmt(e.stderr.get(k))} | "
+                     f"{'-' if not ci else f'[{_fmt(ci[0])}, {_fmt(ci[1])}]'} | {_fmt(true.get(k))} |")
+    lines.append("")
+    for n in e.notes:
+        lines.append(f"- {n}")
+    if e.name in figures:
+        lines += ["", f"![{e.name}]({figures[e.name]})", ""]
+    return lines
+
+
+def _evidence_section(eb: dict, ea: dict, figures: dict[str, str]) -> list[str]:
+    """The residual evidence before and after per channel, the residual lines, and the evidence figures."""
+    lines = ["", "## Residual evidence", "",
+             "| channel | stroke-locked share before | after | power at gait harmonics / noise before | after |"
+             " trend t before | after |", "|---|---|---|---|---|---|---|"]
     for c in CHANNELS:
         lines.append(f"| {c} | {_fmt(eb['gait_locked_share'][c])} | {_fmt(ea['gait_locked_share'][c])} | "
                      f"{_fmt(eb['gait_locked_power_ratio'][c])} | {_fmt(ea['gait_locked_power_ratio'][c])} | "
@@ -252,20 +270,24 @@ def markdown(d, figures: dict[str, str], truth: dict | None = None) -> str:
                        ("correlations", "Whiteness and cross-correlation"), ("dependence", "Dependence")):
         if key in figures:
             lines += [f"### {title}", "", f"![{key}]({figures[key]})", ""]
-    lines += ["## Selection, step by step", "",
-              "Each step fits every remaining candidate on the training runs and judges it on the held-out "
-              "runs (t: one-sided test of the held-out log-likelihood gain per block, Newey-West variance; "
-              "claimed when p is below alpha over the number of candidates, the gain is at least the "
-              "minimum in some channel and the structural checks pass).", ""]
-    for st in j["selection"]:
+    return lines
+
+
+def _selection_section(selection: list[dict]) -> list[str]:
+    """The selection record: every step's candidates with their held-out test and verdict."""
+    lines = ["## Selection, step by step", "",
+             "Each step fits every remaining candidate on the training runs and judges it on the held-out "
+             "runs (t: one-sided test of the held-out log-likelihood gain per block, Newey-West variance; "
+             "claimed when p is below alpha over the number of candidates, the gain is at least the "
+             "minimum in some channel and the structural checks pass).", ""]
+    for st in selection:
         lines += [f"**Step {st['step']}**{' (stopped)' if st.get('stopped') else ''}", "",
                   "| candidate | t | p | held-out LLR | best channel gain | claimed | why not |", "|---|---|---|---|---|---|---|"]
         for c in st["candidates"]:
             lines.append(f"| {c['label']} | {c['t']:.2f} | {c['p']:.2g} | {c['llr']:.1f} | {c['max_gain']:.1%} | "
                          f"{'yes' if c['ok'] else ''} | {c['note']} |")
         lines.append("")
-    lines += ["Method and effect library: docs/diagnose.md.", ""]
-    return "\n".join(lines)
+    return lines
 
 
 def render_report(d, figures: bool = True, truth: dict | None = None) -> dict[str, str | bytes]:
