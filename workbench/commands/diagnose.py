@@ -3,6 +3,16 @@
 from __future__ import annotations
 
 from workbench.commands._help import add_verb
+from workbench.commands.diagnose_trials import (  # noqa: F401 - the trajectory level, importable from here as before
+    _in_given_order,
+    _model_label,
+    _print_trajectory_effects,
+    _swim_model,
+    _swim_models,
+    _write_trajectory_metrics,
+    _write_trajectory_outputs,
+    run_trajectories,
+)
 
 
 def register(sub) -> None:
@@ -207,39 +217,24 @@ def _write_files(folder, files: dict) -> None:
 
 def run(args) -> int:
     """Diagnose, then write diagnosis.json, augmented_model.json and the report into OUT atomically."""
-    import dataclasses
     import time
     from pathlib import Path
 
     from workbench.atomic import atomic_dir, check_replaceable, write_json
     from workbench.console import info
-    from workbench.diagnose.chain import Lowpass
-    from workbench.diagnose.loop import DiagnoseSettings, diagnose
+    from workbench.diagnose.loop import diagnose
     from workbench.hydro.legmodel import load_leg_model
 
     check_replaceable(args.out, "diagnose")  # a wrong --out is refused before the work, not after
 
     t0 = time.perf_counter()
     if args.trials:
-        return _run_trajectories(args, t0)
-    from workbench.params import read_section
-
-    settings = DiagnoseSettings.from_mapping(*read_section(args.params, "diagnose", default="pipelines/diagnose.yaml"))
-    if args.effects:
-        settings = dataclasses.replace(settings, library=dataclasses.replace(
-            settings.library, effects=tuple(e.strip() for e in args.effects.split(",") if e.strip())))
-    if args.max_runs is not None:
-        settings = dataclasses.replace(settings, data=dataclasses.replace(settings.data, max_runs=args.max_runs))
+        return run_trajectories(args, t0)
+    settings = _settings(args)
     frame, (cutoff, order), source = _frame(args)
     settings = _with_tunnel_area(settings, args)
-    lowpass = None
-    if settings.match_lowpass:
-        lowpass = Lowpass(float(settings.lowpass_cutoff_hz or cutoff or 6.0), int(settings.lowpass_order or order or 4))
-    reference, ref_source = None, "reference"
-    if args.reference:
-        reference, (ref_cut, _), ref_source = _frame(args, args.reference)
-        if lowpass is not None and ref_cut is not None and abs(float(ref_cut) - lowpass.cutoff_hz) > 1e-9:
-            info(f"  note: the reference was low-passed at {ref_cut} Hz, this campaign at {lowpass.cutoff_hz} Hz")
+    lowpass = _lowpass(settings, cutoff, order)
+    reference, ref_source = _reference(args, lowpass)
     model = load_leg_model(args.model)
     info(f"diagnose {args.model} on {source}" + (f" against reference {ref_source}" if args.reference else ""))
     d = diagnose(frame, model, args.model, settings=settings, lowpass=lowpass, source=source,
@@ -248,9 +243,7 @@ def run(args) -> int:
     doc["source"] = source
     truth = _virtual_truth(args, frame) if args.model == "ef" and not args.reference else None
     if truth:  # a virtual campaign: what its ground truth gives each claimed effect, beside the fit
-        for e in doc["effects"]:
-            if e["name"] in truth:
-                e["virtual_truth"] = truth[e["name"]]
+        _add_truth(doc, truth)
     out = Path(args.out)
     from workbench.diagnose.report import render_report
 
@@ -260,12 +253,7 @@ def run(args) -> int:
         d.augmented.save(tmp / "augmented_model.json")
         _write_files(tmp, report)
         _readable(tmp)
-    for e in d.effects:
-        params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items() if isinstance(v, float))
-        info(f"  effect {e.name}: {params} (held-out error -{e.heldout_mse_reduction:.0%})")
-    for u in d.unexplained:
-        f = f" at {u.frequency_hz:.2f} Hz" if u.frequency_hz is not None else ""
-        info(f"  unexplained {u.kind}{f} in {', '.join(u.channels)}")
+    _print_claims(d)
     if not args.no_mlflow:
         from workbench.diagnose.tracking import log_diagnosis
 
@@ -274,176 +262,60 @@ def run(args) -> int:
     return 0
 
 
-def _model_label(spec: str, model) -> str:
-    """A readable name for a leg model spec: EF, augmented EF, FED-LSTM, or the spec itself."""
-    from workbench.diagnose.augmented import AugmentedLegModel
+def _settings(args):
+    """The diagnose settings: the parameter file's ``diagnose`` section, then ``--effects`` and ``--max-runs``."""
+    import dataclasses
 
-    if isinstance(model, AugmentedLegModel):
-        base = str(model.base_spec)
-        return "augmented " + ("EF" if base == "ef" else "FED-LSTM" if "lstm" in base.lower() else base)
-    name = str(getattr(model, "name", spec))
-    if spec == "ef" or name.lower() in ("ef", "empirical formula"):
-        return "EF"
-    if "lstm" in spec.lower() or "lstm" in name.lower():
-        return "FED-LSTM"
-    return spec
+    from workbench.diagnose.loop import DiagnoseSettings
+    from workbench.params import read_section
 
-
-def _run_trajectories(args, t0: float) -> int:
-    """Trajectory level: swim the tracked trials with each model, fit trajectory effects, write the errors."""
-    import time
-    from pathlib import Path
-
-    from workbench.commands.diagnose_trajectory import read_track_gaits, read_tracks
-    from workbench.commands.simulate import robot_simulation_settings
-    from workbench.console import info
-    from workbench.diagnose.trajectory import TrajectorySettings, diagnose_trajectories, reference_tracks
-    from workbench.hydro.robot import RobotParams, load_robot
-    from workbench.params import load_settings
-
-    settings = load_settings(TrajectorySettings, args.params, "diagnose.trajectory", default="pipelines/diagnose.yaml",
-                             required=False)
-    robot, sim_kw = RobotParams(), {}
-    if Path(args.robot).is_file():
-        robot = load_robot(args.robot)
-        sim_kw = robot_simulation_settings(args.robot)
-    tracks = read_tracks(args.trials, wall_margin_m=settings.wall_margin_m)
-    gaits = read_track_gaits(args.gaits, tracks)  # each trial's gait, before any model is loaded
-    cut = [tr.trial_id for tr in tracks if tr.cut_at_wall_s is not None]
-    info(f"trajectory level on {args.trials}: {len(tracks)} trials" + (f" ({len(cut)} cut where the robot reached "
-                                                                        f"the wall: {', '.join(cut)})" if cut else ""))
-    specs = list(args.models or [args.model])
-    models, runs, diagnoses = _swim_models(specs, tracks, gaits, robot, settings, sim_kw)
-    ordered = _in_given_order(specs, models)
-    ref_doc = None
-    if args.reference:
-        ref = read_tracks(args.reference, wall_margin_m=settings.wall_margin_m)
-        d = diagnose_trajectories(tracks, reference_tracks(tracks, ref), "reference", settings,
-                                  base=str(args.reference))
-        diagnoses["reference"] = d
-        ref_doc = d.to_json()
-    main_label = "reference" if args.reference else next(iter(ordered))
-    doc = {"schema": "workbench/trajectory-errors@1", "trials": str(args.trials), "gaits": str(args.gaits),
-           "reference": str(args.reference) if args.reference else None,
-           "wall_margin_m": settings.wall_margin_m, "cut_at_wall": cut, "models": ordered,
-           "runtime_s": round(time.perf_counter() - t0, 1)}
-    _write_trajectory_outputs(args, doc, diagnoses.get(main_label), ref_doc, tracks, runs, ordered)
-    _print_trajectory_effects(diagnoses)
-    if args.metrics:
-        _write_trajectory_metrics(Path(args.metrics), ordered)
-    if not args.no_mlflow:
-        from workbench.diagnose.tracking import log_trajectory_diagnosis
-
-        log_trajectory_diagnosis(doc, diagnoses, Path(args.out), settings, args.tracking_uri)
-    info(f"wrote {args.out}/trajectory_errors.json, trajectory_diagnosis.json ({time.perf_counter() - t0:.1f} s)")
-    return 0
+    settings = DiagnoseSettings.from_mapping(*read_section(args.params, "diagnose", default="pipelines/diagnose.yaml"))
+    if args.effects:
+        settings = dataclasses.replace(settings, library=dataclasses.replace(
+            settings.library, effects=tuple(e.strip() for e in args.effects.split(",") if e.strip())))
+    if args.max_runs is not None:
+        settings = dataclasses.replace(settings, data=dataclasses.replace(settings.data, max_runs=args.max_runs))
+    return settings
 
 
-def _swim_models(specs: list[str], tracks, gaits, robot, settings, sim_kw: dict
-                 ) -> tuple[dict[str, dict], dict[str, list], dict[str, object]]:
-    """Swim the tracked trials with each model (the EF first: its swims warm-start the others' fixed points).
+def _lowpass(settings, cutoff, order):
+    """The ingest's low-pass applied to the model's prediction too (None when ``match_lowpass`` is off)."""
+    from workbench.diagnose.chain import Lowpass
 
-    Returns, per model label, its errors (with effects, or ``diagnosis_error`` when the trajectory
-    diagnosis failed on the data), its swims, and its trajectory diagnosis.
+    if not settings.match_lowpass:
+        return None
+    return Lowpass(float(settings.lowpass_cutoff_hz or cutoff or 6.0), int(settings.lowpass_order or order or 4))
+
+
+def _reference(args, lowpass) -> tuple:
+    """The ``--reference`` campaign's frame and source label (None, "reference" without one).
+
+    A reference low-passed at another cutoff than this campaign is noted, not refused.
     """
-    order = sorted(range(len(specs)), key=lambda k: specs[k] != "ef")
-    models: dict[str, dict] = {}
-    runs: dict[str, list] = {}
-    diagnoses: dict[str, object] = {}
-    warm = None
-    for k in order:
-        label, err, sims, d = _swim_model(specs[k], tracks, gaits, robot, settings, sim_kw, warm)
-        if specs[k] == "ef":
-            warm = sims
-        if d is not None:
-            diagnoses[label] = d
-        models[label] = err
-        runs[label] = sims
-    return models, runs, diagnoses
-
-
-def _swim_model(spec: str, tracks, gaits, robot, settings, sim_kw: dict, warm):
-    """One model's swims of the tracked trials, their errors and trajectory diagnosis (None if it failed)."""
-    import time
-
-    from workbench.commands.diagnose_trajectory import tabulator
-    from workbench.console import info
-    from workbench.diagnose.augmented import AugmentedLegModel
-    from workbench.diagnose.trajectory import diagnose_trajectories, simulate_tracks, trajectory_errors
-    from workbench.errors import DataError
-    from workbench.hydro.legmodel import load_leg_model
-
-    model = load_leg_model(spec)
-    label = _model_label(spec, model)
-    if isinstance(model, AugmentedLegModel):
-        model = model.physical()     # a swimming robot meets no tunnel blockage and no load-cell drift
-    ts = time.perf_counter()
-    sims = simulate_tracks(tracks, gaits, model, robot, settings, sim_kw, warm=warm, tabulate=tabulator)
-    sim_s = time.perf_counter() - ts
-    err = trajectory_errors(tracks, sims)
-    err.update({"spec": spec, "sim_seconds": round(sim_s, 1)})
-    for e in err["excluded"]:
-        info(f"  {label}: {e['trial_id']} left out: {e['reason']}")
-    d = None
-    try:
-        d = diagnose_trajectories(tracks, sims, label, settings)
-        err["effects"], err["unexplained"] = d.effects, d.unexplained
-        err["tests"] = d.tests
-    except DataError as exc:
-        err["effects"], err["unexplained"] = [], []
-        err["diagnosis_error"] = str(exc)
-    info(f"  {label}: RMS position {err['rms_position_m']:.3f} m, heading {err['rms_heading_deg']:.1f} deg "
-         f"({err['n_trials']} converged swims, {sim_s:.0f} s)")
-    return label, err, sims, d
-
-
-def _in_given_order(specs: list[str], models: dict[str, dict]) -> dict[str, dict]:
-    """The models' errors in the order their specs were given on the command line."""
-    ordered = {}
-    for spec in specs:
-        for lab, m in models.items():
-            if m["spec"] == spec:
-                ordered[lab] = m
-    return ordered
-
-
-def _write_trajectory_outputs(args, doc: dict, main, ref_doc: dict | None, tracks, runs: dict, ordered: dict) -> None:
-    """trajectory_errors.json, the main and reference diagnoses and the errors figure, into OUT atomically."""
-    from pathlib import Path
-
-    from workbench.atomic import atomic_dir, write_json
-    from workbench.diagnose.trajectory import fig_errors
-
-    png = None if args.no_figures else fig_errors(tracks, runs, ordered)
-    with atomic_dir(Path(args.out)) as tmp:
-        write_json(tmp / "trajectory_errors.json", doc)
-        if main is not None:
-            dj = main.to_json()
-            dj["source"] = str(args.trials)
-            write_json(tmp / "trajectory_diagnosis.json", dj)
-        if ref_doc is not None:
-            write_json(tmp / "trajectory_diagnosis_reference.json", ref_doc)
-        if png is not None:
-            (tmp / "trajectory_errors.png").write_bytes(png)
-        _readable(tmp)
-
-
-def _print_trajectory_effects(diagnoses: dict) -> None:
-    """One line per claimed effect and per unexplained residual of each trajectory diagnosis."""
     from workbench.console import info
 
-    for label, d in diagnoses.items():
-        for e in d.effects:
-            info(f"  {label}: effect {e['name']}: " + ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items()))
-        for u in d.unexplained:
-            info(f"  {label}: unexplained {u['kind']}" + (f" ({u['rate_dps']:+.2f} deg/s)" if "rate_dps" in u else ""))
+    if not args.reference:
+        return None, "reference"
+    reference, (ref_cut, _), ref_source = _frame(args, args.reference)
+    if lowpass is not None and ref_cut is not None and abs(float(ref_cut) - lowpass.cutoff_hz) > 1e-9:
+        info(f"  note: the reference was low-passed at {ref_cut} Hz, this campaign at {lowpass.cutoff_hz} Hz")
+    return reference, ref_source
 
 
-def _write_trajectory_metrics(path, ordered: dict) -> None:
-    """The DVC metrics file: each model's trajectory errors."""
-    from workbench.atomic import write_json
+def _add_truth(doc: dict, truth: dict) -> None:
+    """Each claimed effect's virtual-truth parameters beside its fitted ones in ``doc`` (in place)."""
+    for e in doc["effects"]:
+        if e["name"] in truth:
+            e["virtual_truth"] = truth[e["name"]]
 
-    flat = {label: {k: m.get(k) for k in ("rms_position_m", "rms_heading_deg", "mean_final_position_m",
-                                           "n_trials")} for label, m in ordered.items()}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(path, {"trajectory_error": flat})
+
+def _print_claims(d) -> None:
+    """One line per claimed effect (its parameters and held-out reduction) and per unexplained residual."""
+    from workbench.console import info
+
+    for e in d.effects:
+        params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items() if isinstance(v, float))
+        info(f"  effect {e.name}: {params} (held-out error -{e.heldout_mse_reduction:.0%})")
+    for u in d.unexplained:
+        f = f" at {u.frequency_hz:.2f} Hz" if u.frequency_hz is not None else ""
+        info(f"  unexplained {u.kind}{f} in {', '.join(u.channels)}")
