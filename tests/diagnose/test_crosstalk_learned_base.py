@@ -3,9 +3,11 @@
 A misfit of the force model is a wrench acting on the leg, so it shows in every channel at once
 (a force at a point off the load cell's axis gives moments as well); a load-cell crosstalk adds a
 share of one channel's reading to one other channel only. The crosstalk's columns are estimated
-beside the other channels' residuals (``misfit_free``) on training runs. Planted here with the
-test's own formulas: a leg-plane force at a moving point, a base model that misses part of it
-(a gain and a lag of its own), and a 3 % fz-from-fy crosstalk.
+beside the other channels' residuals (``misfit_free``) on training runs, and judged on held-out
+runs beside them (``judge_beside_misfit``). Planted here with the test's own formulas: a
+leg-plane force at a moving point, a base model that misses part of it (a gain and a lag of its
+own; in the judging test a missed force whose point of action moves with the flow speed), and a
+3 % fz-from-fy crosstalk.
 """
 
 from pathlib import Path
@@ -70,11 +72,13 @@ def test_a_crosstalk_is_told_from_a_misfit_that_shows_in_every_channel(share):
 
 
 @pytest.mark.slow
-def test_fed_lstm_base_names_a_10pc_crosstalk_at_its_value():
-    """With the trained FED-LSTM as base and no reference, a 10 % fz-from-fy crosstalk (missed before) is named.
+def test_fed_lstm_base_names_a_3pc_crosstalk_at_its_value():
+    """With the trained FED-LSTM as base and no reference, a 3 % fz-from-fy crosstalk (missed before) is named.
 
     Before the misfit guard a 6 % one came out at 0.103 beside a false ``x_ty_tz`` and a 10 % one
-    was not named; the entry must now be the planted one, within 20 %, alone.
+    was not named; with the guard 6 % and 10 % were named, 3 % missed (held-out p 0.00077 against
+    the step's level 0.00056) until the entries were judged beside the other channels' residuals.
+    The entry must be the planted one, within 20 %, alone.
     """
     import sys
 
@@ -90,13 +94,105 @@ def test_fed_lstm_base_names_a_10pc_crosstalk_at_its_value():
     with tempfile.TemporaryDirectory() as tmp:
         bench = battery.Bench(Path(tmp), n_sets=12)
 
-        def plant(lc, mo, run):                      # the test's own formula: fz reads 10 % of fy
-            lc["fz_n"] = lc["fz_n"] + 0.10 * lc["fy_n"]
+        def plant(lc, mo, run):                      # the test's own formula: fz reads 3 % of fy
+            lc["fz_n"] = lc["fz_n"] + 0.03 * lc["fy_n"]
 
-        dst = planting.copy_campaign(bench.new_campaign(), Path(tmp) / "xt10", [plant])
+        dst = planting.copy_campaign(bench.new_campaign(), Path(tmp) / "xt3", [plant])
         d = bench.diagnose(bench.frame(dst), str(model), False)
     named = {e.name: e for e in d.effects}
     assert "loadcell_crosstalk" in named, [e.name for e in d.effects]
     params = named["loadcell_crosstalk"].params
-    assert params["x_fz_fy"] == pytest.approx(0.10, rel=0.2), params
+    assert params["x_fz_fy"] == pytest.approx(0.03, rel=0.2), params
     assert set(params) == {"x_fz_fy"}, params
+
+
+class _Batch:
+    """The parts of a batch of runs (``workbench.diagnose.data.RunSet``) the crosstalk, the blocks and the sums read."""
+
+    def __init__(self, y, flow, index, heldout, dt_s=DT):
+        self.y, self.flow, self.index, self.heldout, self.dt_s = y, flow, index, heldout, dt_s
+        self.time_s = np.broadcast_to(np.arange(y.shape[1]) * dt_s, y.shape[:2]).copy()
+        self.fit = np.ones(y.shape[:2], bool)
+
+    @property
+    def shape(self):
+        return self.time_s.shape
+
+
+def _flow_runs(share, seed=5, per_speed=6, seconds=12.0):
+    """Readings and a model's prediction at three flow speeds: the model misses a force whose point of action
+    on the leg moves with the flow (inertial at rest, hydrodynamic in flow), and fz reads ``share`` of fy."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, seconds, DT)
+    reads, preds, flows = [], [], []
+    for u in (0.0, 0.12, 0.25):
+        for _ in range(per_speed):
+            w = 2 * np.pi * rng.uniform(0.3, 0.6)
+            ph = rng.uniform(0, 2 * np.pi, 4)
+            fy = 0.3 * np.sin(w * t + ph[0]) + 0.1 * np.sin(2 * w * t + ph[1])
+            fz = 0.25 * np.cos(w * t + ph[0]) + 0.08 * np.sin(3 * w * t + ph[2])
+            px = 0.15 + 0.05 * np.sin(w * t + ph[3])
+            py = -0.12 + 0.04 * np.cos(w * t + ph[3])
+            model = _wrench(fy, fz, px, py, 0.02)
+            # the missed force: a lagged share of the force, acting 0.1 m further out in flow than at rest
+            my, mz = 0.12 * _late(fy, 0.08), 0.12 * _late(fz, 0.08) + (0.04 + 0.1 * u) * np.sin(w * t)
+            true = model + _wrench(my, mz, px + 0.1 * u / 0.25, py - 0.05, 0.02 + 0.1 * u)
+            read = true + 2e-3 * rng.normal(size=true.shape) * np.array([1, 1, 1, 0.1, 0.01, 0.01])
+            read[:, 2] += share * read[:, 1]
+            reads.append(read)
+            preds.append(model)
+            flows.append(u)
+    return np.array(reads), np.array(preds), np.array(flows)
+
+
+def _heldout_p(share, judge_beside_misfit):
+    """The held-out test of an ``x_fz_fy`` entry as the selection runs it (training runs: 2 of 3 per speed)."""
+    from types import SimpleNamespace
+
+    from workbench.diagnose import lsq
+    from workbench.diagnose.chain import Design
+    from workbench.diagnose.data import make_blocks
+    from workbench.diagnose.effects.crosstalk import LoadcellCrosstalk
+    from workbench.diagnose.selection_judge import judge
+
+    reads, preds, flows = _flow_runs(share)
+    held = np.arange(len(flows)) % 3 == 2
+    eff = LoadcellCrosstalk(judge_beside_misfit=judge_beside_misfit)
+    nl = eff.judged_as({}) or {}
+    names = ["loadcell_crosstalk.x_fz_fy"]
+    names += [f"loadcell_crosstalk.{n}" for n in eff.judging_names(nl, names)]
+
+    def fitted(values):
+        parts = []
+        for h in (False, True):
+            idx = np.flatnonzero(held == h)
+            rs = _Batch(reads[idx], flows[idx], idx, h)
+            terms = eff.sensor_terms(SimpleNamespace(rs=rs), values, preds[idx])
+            d = Design(base=preds[idx], names=[f"loadcell_crosstalk.{n}" for n in terms.names], cols=terms.cols,
+                       support=terms.support, local_names=[], local=[])
+            parts.append(lsq.accumulate(d, rs, make_blocks(rs, 1, 2.0), names))
+        gr = lsq.concat(parts)
+        return lsq.fit(gr, np.ones(6)), gr
+
+    after, gr = fitted(nl)
+    if judge_beside_misfit:
+        before, _ = fitted(eff.null_variants(nl)[0])
+    else:
+        before = lsq.fit(gr.subset([]), np.ones(6))
+    test, _ = judge(before, after, gr, 2)
+    return test["p"], after.coefs()["loadcell_crosstalk.x_fz_fy"]
+
+
+def test_judged_beside_the_other_channels_misfit_a_small_crosstalk_is_significant():
+    """Judged as the plain crosstalk, a 3 % crosstalk hides in the model's misfit; beside it, it does not.
+
+    The model's estimate (the column made free of the misfit, with the flow speed's powers) and the
+    judged one are the planted share; with nothing planted the judged test finds nothing.
+    """
+    p_plain, x_model = _heldout_p(0.03, judge_beside_misfit=False)
+    p_judged, x_judged = _heldout_p(0.03, judge_beside_misfit=True)
+    p_clean, _ = _heldout_p(0.0, judge_beside_misfit=True)
+    assert p_judged < 1e-4 < p_plain, (p_plain, p_judged)
+    assert x_model == pytest.approx(0.03, rel=0.2)
+    assert x_judged == pytest.approx(0.03, rel=0.2)
+    assert p_clean > 0.01, p_clean

@@ -151,8 +151,7 @@ class LoadcellCrosstalk(Effect):
         if y is None:
             return
         resid = y - prediction
-        flow = np.asarray(getattr(rs, "flow", np.zeros(resid.shape[0])), float)
-        flow = np.where(np.isfinite(flow), flow, 0.0)[:, None]
+        powers = _flow_powers(rs, resid.shape[0], self.misfit_flow_degree)  # (d, B, 1)
         for i in sorted({i for i, _ in self.pairs}):
             s = np.zeros(6, bool)
             s[i] = True
@@ -161,7 +160,7 @@ class LoadcellCrosstalk(Effect):
                     continue
                 for d in range(self.misfit_flow_degree + 1):
                     col = np.zeros_like(prediction)
-                    col[..., i] = resid[..., k] * flow ** d
+                    col[..., i] = resid[..., k] * powers[d]
                     names.append(self._nuisance_name(i, k, d))
                     cols.append(col)
                     sup.append(s)
@@ -173,7 +172,15 @@ class LoadcellCrosstalk(Effect):
         if not self.misfit_guard or y is None or fit is None or getattr(rs, "heldout", True) or not fit.any():
             return None
         resid = y - prediction
-        return [np.delete(resid, i, axis=-1) for i in range(6)] + [fit]
+        powers = _flow_powers(rs, resid.shape[0], self.misfit_flow_degree)[..., None]  # (d, B, 1, 1)
+        return [np.concatenate(list(np.delete(resid, i, axis=-1)[None] * powers), axis=-1) for i in range(6)] + [fit]
+
+
+def _flow_powers(rs, n: int, degree: int) -> np.ndarray:
+    """(degree + 1, B, 1): each run's flow speed to the powers 0..degree (0 where unknown)."""
+    flow = np.asarray(getattr(rs, "flow", np.zeros(n)), float)
+    flow = np.where(np.isfinite(flow), flow, 0.0)
+    return np.stack([flow ** d for d in range(degree + 1)])[:, :, None]
 
 
 def misfit_free(source: np.ndarray, others: np.ndarray, fit: np.ndarray) -> np.ndarray:
