@@ -64,9 +64,8 @@ def spawn_workers(spec: dict, n_trials: int, workers: int, report: Callable[[str
     restarts in all). Leaving by an exception (Ctrl-C, SIGTERM) stops every worker and waits.
     A worker that failed (non-zero exit status) is a :class:`~workbench.errors.StageError`.
     """
-    from workbench import procs
+    import workbench.learn.tune_storage  # noqa: F401 - loaded before any worker starts: no import during a stop
     from workbench.errors import StageError
-    from workbench.learn.tune_storage import fail_stale
 
     say = report or (lambda _m: None)
     slots = shares(n_trials, workers)
@@ -78,36 +77,63 @@ def spawn_workers(spec: dict, n_trials: int, workers: int, report: Callable[[str
             running[i] = start_worker(spec, i, n, report)
         while running:
             time.sleep(0.5)
-            for i, p in list(running.items()):
-                rc = p.poll()
-                if rc is None:
-                    continue
-                del running[i]
-                if rc < 0:
-                    failed = fail_stale(study)
-                    left = _owed(study, spec, i, slots[i])
-                    say(f"worker {i} was killed ({_signal_name(rc)}); trial(s) {failed or 'none'} failed and queued again")
-                    if left > 0 and restarts < workers:
-                        restarts += 1
-                        say(f"worker {i} restarted for the {left} trial(s) of its share still owed")
-                        running[i] = start_worker(spec, i, left, report)
-                        continue
-                    if left <= 0:  # killed after its share was done (while exiting): nothing is owed
-                        say(f"worker {i} had finished its {slots[i]} trial(s); nothing owed")
-                        codes[i] = 0
-                        continue
-                codes[i] = rc
+            restarts = _reap(running, codes, restarts, spec, slots, workers, report, say, study)
     except BaseException:
-        procs.interrupted()
-        procs.stop(list(running.values()))
-        try:
-            fail_stale(study)
-        except Exception:  # noqa: BLE001 - the storage itself may be what failed
-            pass
+        _stop_workers(running, study)
         raise
     bad = {i: c for i, c in codes.items() if c}
     if bad:
         raise StageError(f"tune worker(s) failed with exit status {bad}", hint="see the worker lines above")
+
+
+def _reap(running: dict[int, subprocess.Popen], codes: dict[int, int], restarts: int, spec: dict,
+          slots: dict[int, int], workers: int, report, say: Callable[[str], None], study) -> int:
+    """One look at the running workers; returns the restarts made so far.
+
+    An exited worker leaves ``running`` for ``codes``; a killed one that still owes trials is
+    restarted in its place while ``restarts < workers``.
+    """
+    for i, p in list(running.items()):
+        rc = p.poll()
+        if rc is None:
+            continue
+        del running[i]
+        if rc < 0:
+            left = _after_kill(study, spec, i, slots[i], rc, say)
+            if left > 0 and restarts < workers:
+                restarts += 1
+                say(f"worker {i} restarted for the {left} trial(s) of its share still owed")
+                running[i] = start_worker(spec, i, left, report)
+                continue
+            if left <= 0:  # killed after its share was done (while exiting): nothing is owed
+                say(f"worker {i} had finished its {slots[i]} trial(s); nothing owed")
+                codes[i] = 0
+                continue
+        codes[i] = rc
+    return restarts
+
+
+def _after_kill(study, spec: dict, worker: int, share: int, rc: int, say: Callable[[str], None]) -> int:
+    """A worker was killed by a signal: fail and queue again its running trial, say so; returns the trials it owes."""
+    from workbench.learn.tune_storage import fail_stale
+
+    failed = fail_stale(study)
+    left = _owed(study, spec, worker, share)
+    say(f"worker {worker} was killed ({_signal_name(rc)}); trial(s) {failed or 'none'} failed and queued again")
+    return left
+
+
+def _stop_workers(running: dict[int, subprocess.Popen], study) -> None:
+    """Leaving by an exception: mark the stop, end the running workers and wait, fail their trials (if the storage can)."""
+    from workbench import procs
+    from workbench.learn.tune_storage import fail_stale
+
+    procs.interrupted()
+    procs.stop(list(running.values()))
+    try:
+        fail_stale(study)
+    except Exception:  # noqa: BLE001 - the storage itself may be what failed
+        pass
 
 
 def worker_main(argv: list[str]) -> int:
