@@ -213,59 +213,32 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, fresh: bool = False,
     import optuna
 
     from workbench import procs
-    from workbench.learn.tune_storage import fail_stale, resolve_storage
-    from workbench.learn.tune_workers import spawn_workers
-    from workbench.tracking import log_metrics, log_params, run_name, run_tags, setup
+    from workbench.learn.tune_storage import fail_stale
 
     procs.install()  # SIGTERM/SIGHUP clean up as Ctrl-C does: workers stopped, trials failed, runs ended
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    if tune.workers > 1 and base.trainer.torch_threads == AUTO:
-        # the idle cores are shared out among the worker processes, not claimed by each of them
-        base = base.with_overrides({"trainer.torch_threads": max(1, idle_cores() // tune.workers)})
-    storage, where = resolve_storage(tune.storage, tune.study, tune)
-    if fresh and tune.study in optuna.get_all_study_names(storage):
-        optuna.delete_study(study_name=tune.study, storage=storage)
-    study = optuna.create_study(study_name=tune.study, storage=storage, direction="minimize", load_if_exists=True)
+    base = _share_threads(base, tune)
+    study, storage, where = _open_study(tune, fresh)
     baseline = [t.number for t in study.get_trials(deepcopy=False)]
     command = uuid.uuid4().hex[:12]
     fail_stale(study)  # trials of workers that died earlier: failed (and queued again) now
     if report:
         report(f"study {tune.study!r} in {where}: {len(baseline)} earlier trial(s); running {tune.n_trials} "
                f"in {tune.workers} worker process(es)")
-    parent_id = None
-    tracking_uri = None
-    if base.tracking.enabled:
-        tracking_uri = setup(base.tracking.tracking_uri, base.tracking.experiment)
-        campaigns = _campaigns(base)
-        parent = mlflow.start_run(run_name=run_name("tune", tune.study, campaigns, base.tracking.dvc_stage), tags=run_tags(
-            kind="tune", campaigns=campaigns, dvc_stage=base.tracking.dvc_stage, study=tune.study, storage=where))
-        parent_id = parent.info.run_id
-        log_params({"tune": {k: v for k, v in _tune_dict(tune).items() if k != "space"}, "space": _tune_dict(tune)["space"],
-                    "train": base.to_dict()})
+    parent_id, tracking_uri = _start_parent_run(base, tune, where)
     status = "FAILED"
     try:
         spec = {"config": base.to_dict(), "tune": _tune_dict(tune), "storage": where, "study": tune.study,
                 "parent_run_id": parent_id, "tracking_uri": tracking_uri, "total": tune.n_trials,
                 "baseline": baseline, "n_workers": tune.workers, "command": command}
-        t0 = time.perf_counter()
-        if tune.workers <= 1:
-            run_worker({**spec, "worker": 0, "n_trials": tune.n_trials}, report)
-        else:
-            spawn_workers(spec, tune.n_trials, tune.workers, report, study)
-        elapsed = time.perf_counter() - t0
+        elapsed = _run_trials(spec, tune, report, study)
         fail_stale(study)
         summary = summarise(optuna.load_study(study_name=tune.study, storage=storage), set(baseline), elapsed,
                             command=command)
         summary["storage"] = where
         if summary["best"] is None:
             raise StageError(f"study {tune.study!r}: no trial completed; first failure: {summary['first_failure']}")
-        if base.tracking.enabled and tune.register_best and summary["best"].get("mlflow_run_id"):
-            summary["best"]["model_version"] = _register_best(base, tune, summary["best"], storage)
-        if base.tracking.enabled:
-            log_metrics({"best_val_loss": summary["best"]["value"], "n_complete": summary["counts"]["COMPLETE"],
-                         "n_pruned": summary["counts"]["PRUNED"], "n_failed": summary["counts"]["FAIL"],
-                         "elapsed_s": elapsed})
-            mlflow.log_dict(summary, "tune_summary.json")
+        _record_best(base, tune, summary, elapsed, storage)
         status = "FINISHED"
         return summary
     except KeyboardInterrupt:
@@ -275,6 +248,72 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, fresh: bool = False,
         if parent_id is not None:
             mlflow.set_tag("state", {"FINISHED": "complete", "KILLED": "interrupted"}.get(status, "failed"))
             mlflow.end_run(status=status)
+
+
+def _share_threads(base: LearnConfig, tune: TuneCfg) -> LearnConfig:
+    """With several workers and automatic torch threads, the idle cores shared out among the workers."""
+    if tune.workers > 1 and base.trainer.torch_threads == AUTO:
+        # the idle cores are shared out among the worker processes, not claimed by each of them
+        return base.with_overrides({"trainer.torch_threads": max(1, idle_cores() // tune.workers)})
+    return base
+
+
+def _open_study(tune: TuneCfg, fresh: bool):
+    """The study (deleted first when ``fresh``), created or loaded; returns ``(study, storage, where)``."""
+    import optuna
+
+    from workbench.learn.tune_storage import resolve_storage
+
+    storage, where = resolve_storage(tune.storage, tune.study, tune)
+    if fresh and tune.study in optuna.get_all_study_names(storage):
+        optuna.delete_study(study_name=tune.study, storage=storage)
+    study = optuna.create_study(study_name=tune.study, storage=storage, direction="minimize", load_if_exists=True)
+    return study, storage, where
+
+
+def _start_parent_run(base: LearnConfig, tune: TuneCfg, where: str) -> tuple[str | None, str | None]:
+    """The study's parent MLflow run, started with the settings logged; ``(run id, tracking URI)``, Nones untracked."""
+    if not base.tracking.enabled:
+        return None, None
+    import mlflow
+
+    from workbench.tracking import log_params, run_name, run_tags, setup
+
+    tracking_uri = setup(base.tracking.tracking_uri, base.tracking.experiment)
+    campaigns = _campaigns(base)
+    parent = mlflow.start_run(run_name=run_name("tune", tune.study, campaigns, base.tracking.dvc_stage), tags=run_tags(
+        kind="tune", campaigns=campaigns, dvc_stage=base.tracking.dvc_stage, study=tune.study, storage=where))
+    log_params({"tune": {k: v for k, v in _tune_dict(tune).items() if k != "space"}, "space": _tune_dict(tune)["space"],
+                "train": base.to_dict()})
+    return parent.info.run_id, tracking_uri
+
+
+def _run_trials(spec: dict, tune: TuneCfg, report: Callable[[str], None] | None, study) -> float:
+    """This command's trials, in this process (one worker) or in worker processes; returns the seconds taken."""
+    from workbench.learn.tune_workers import spawn_workers
+
+    t0 = time.perf_counter()
+    if tune.workers <= 1:
+        run_worker({**spec, "worker": 0, "n_trials": tune.n_trials}, report)
+    else:
+        spawn_workers(spec, tune.n_trials, tune.workers, report, study)
+    return time.perf_counter() - t0
+
+
+def _record_best(base: LearnConfig, tune: TuneCfg, summary: dict, elapsed: float, storage) -> None:
+    """When tracked: register the best trial's model (if asked) and log the study's metrics and summary."""
+    if not base.tracking.enabled:
+        return
+    import mlflow
+
+    from workbench.tracking import log_metrics
+
+    if tune.register_best and summary["best"].get("mlflow_run_id"):
+        summary["best"]["model_version"] = _register_best(base, tune, summary["best"], storage)
+    log_metrics({"best_val_loss": summary["best"]["value"], "n_complete": summary["counts"]["COMPLETE"],
+                 "n_pruned": summary["counts"]["PRUNED"], "n_failed": summary["counts"]["FAIL"],
+                 "elapsed_s": elapsed})
+    mlflow.log_dict(summary, "tune_summary.json")
 
 
 def _campaigns(base: LearnConfig) -> list[str]:
