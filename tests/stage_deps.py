@@ -58,6 +58,29 @@ def module_name(path: Path) -> str:
     return ".".join(parts)
 
 
+def _named_modules(node: ast.AST, pkg: list[str]) -> set[str]:
+    """Module names one AST node imports or names (imports, module-name strings, plug-in tables)."""
+    if isinstance(node, ast.Import):
+        return {a.name for a in node.names}
+    if isinstance(node, ast.ImportFrom):
+        if node.level:
+            base = pkg[: len(pkg) - node.level + 1]
+            mod = ".".join(base + ([node.module] if node.module else []))
+        else:
+            mod = node.module or ""
+        return {mod} | {f"{mod}.{a.name}" for a in node.names}
+    if isinstance(node, ast.Assign) and isinstance(node.value, ast.Constant) \
+            and isinstance(node.value.value, str) and MODULE_STRING.fullmatch(node.value.value):
+        return {node.value.value}  # IN_TREE_PACKAGE = "workbench.diagnose.effects" (scanned later)
+    if isinstance(node, (ast.Tuple, ast.List, ast.Set, ast.Call)):
+        # a plug-in table (a sequence of module names) or import_module("workbench.x"); dict keys
+        # naming modules (a lookup table, atomic.py's verbs) are not imports
+        items = node.elts if not isinstance(node, ast.Call) else node.args
+        return {c.value for c in items if isinstance(c, ast.Constant) and isinstance(c.value, str)
+                and MODULE_STRING.fullmatch(c.value)}
+    return set()
+
+
 @lru_cache(maxsize=None)
 def direct_imports(path: Path) -> frozenset[Path]:
     tree = ast.parse(path.read_text(), filename=str(path))
@@ -66,25 +89,7 @@ def direct_imports(path: Path) -> frozenset[Path]:
         pkg = pkg[:-1]
     names: set[str] = set()
     for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            names.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = pkg[: len(pkg) - node.level + 1]
-                mod = ".".join(base + ([node.module] if node.module else []))
-            else:
-                mod = node.module or ""
-            names.add(mod)
-            names.update(f"{mod}.{a.name}" for a in node.names)
-        elif isinstance(node, ast.Assign) and isinstance(node.value, ast.Constant) \
-                and isinstance(node.value.value, str) and MODULE_STRING.fullmatch(node.value.value):
-            names.add(node.value.value)  # IN_TREE_PACKAGE = "workbench.diagnose.effects" (scanned later)
-        elif isinstance(node, (ast.Tuple, ast.List, ast.Set, ast.Call)):
-            # a plug-in table (a sequence of module names) or import_module("workbench.x"); dict keys
-            # naming modules (a lookup table, atomic.py's verbs) are not imports
-            items = node.elts if not isinstance(node, ast.Call) else node.args
-            names.update(c.value for c in items if isinstance(c, ast.Constant) and isinstance(c.value, str)
-                         and MODULE_STRING.fullmatch(c.value))
+        names.update(_named_modules(node, pkg))
     files = set()
     for n in list(names):
         f = module_file(n)

@@ -168,6 +168,16 @@ def _heavy_at_top(path: Path) -> set[str]:
     return {m.split(".")[0] for m, top in _imports(path) if top and m.split(".")[0] in HEAVY}
 
 
+def _listed_imports_at_top(path: Path, rel: str, allowed) -> list[str]:
+    """Modules of the heavy-libraries list that `path` imports at its top (each loads its library)."""
+    bad = []
+    for module, top in _imports(path):
+        target = module.replace(".", "/") + ".py"
+        if top and allowed(target) and (ROOT / target).is_file():
+            bad.append(f"{rel}: imports {module} at the top")
+    return bad
+
+
 def test_heavy_libraries_are_imported_at_the_top_only_by_the_listed_modules():
     rows = {row[0]: {x.strip() for x in row[1].split(",")} for row in _table("Heavy libraries (checked)")}
 
@@ -184,10 +194,7 @@ def test_heavy_libraries_are_imported_at_the_top_only_by_the_listed_modules():
                 seen[pattern] |= heavy
         # a module outside the list must not import a listed one at its top (that would load the library)
         if not allowed(rel):
-            for module, top in _imports(path):
-                target = module.replace(".", "/") + ".py"
-                if top and allowed(target) and (ROOT / target).is_file():
-                    bad.append(f"{rel}: imports {module} at the top")
+            bad += _listed_imports_at_top(path, rel, allowed)
     for pattern, libs in rows.items():
         exists = any(fnmatch.fnmatch(_rel(p), pattern) for p in _sources())
         if exists and seen[pattern] != libs:

@@ -186,6 +186,26 @@ def _trials(storage_arg: str, study: str):
     return optuna.load_study(study_name=study, storage=_STORAGES[storage_arg]).get_trials()
 
 
+def _a_running_trial_of(a, b, storage_arg: str, killed: dict) -> bool:
+    """Whether one of command A's workers is training a trial (its 7 parameters drawn); if so, note it in `killed`."""
+    from workbench.learn.tune_storage import HEARTBEAT_KEY, OWNER_KEY
+
+    pids = {k.pid for k in a.watch() if "workbench.learn.tune" in " ".join(k.cmdline())}
+    b.watch()
+    try:
+        trials = _trials(storage_arg, "c")
+    except Exception:  # noqa: BLE001 - the study may not exist yet
+        return False
+    for t in trials:
+        if t.state.name != "RUNNING" or "command" not in t.user_attrs or len(t.params) < 7:
+            continue
+        who = t.system_attrs.get(HEARTBEAT_KEY) or t.system_attrs.get(OWNER_KEY) or {}
+        if who.get("pid") in pids and who.get("trial") == t.number:
+            killed.update(pid=who["pid"], trial=t.number)
+            return True
+    return False
+
+
 def _two_commands_one_killed_worker(tmp_path, storage_arg: str):
     data = small_parquet(tmp_path)
     cfg = tiny_learn_config(tmp_path, max_epochs=6, pruner={"type": "none"}, heartbeat_interval_s=2,
@@ -197,24 +217,8 @@ def _two_commands_one_killed_worker(tmp_path, storage_arg: str):
     b = Verb(args, env, tmp_path, tmp_path / "b.log")
     killed = {}
     try:
-        from workbench.learn.tune_storage import HEARTBEAT_KEY, OWNER_KEY
-
         def victim():
-            pids = {k.pid for k in a.watch() if "workbench.learn.tune" in " ".join(k.cmdline())}
-            b.watch()
-            try:
-                trials = _trials(storage_arg, "c")
-            except Exception:  # noqa: BLE001 - the study may not exist yet
-                return False
-            for t in trials:
-                # a trial in training: its 7 parameters drawn
-                if t.state.name != "RUNNING" or "command" not in t.user_attrs or len(t.params) < 7:
-                    continue
-                who = t.system_attrs.get(HEARTBEAT_KEY) or t.system_attrs.get(OWNER_KEY) or {}
-                if who.get("pid") in pids and who.get("trial") == t.number:
-                    killed.update(pid=who["pid"], trial=t.number)
-                    return True
-            return False
+            return _a_running_trial_of(a, b, storage_arg, killed)
 
         a.wait_for(victim, 400, "a running trial of command A's worker")
         os.kill(killed["pid"], signal.SIGKILL)
