@@ -319,6 +319,7 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
             prediction += v * c
     d = Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)
     ctx.coefs = coefs  # the current coefficients, for a sensor effect's known part (Terms.fit_offset)
+    ctx.compare = compare_filter(config, ctx.dt_s)  # what the fits compare residuals through (None: as read)
     for a in config.stage("sensor"):
         _add_sensor_terms(d, a, a.effect.sensor_terms(ctx, a.nl, prediction), only)
     return d

@@ -88,6 +88,9 @@ class Context:
         self._flow_cache: dict[float, np.ndarray] = {}
         #: the current values of the linear coefficients (qualified names), set before the sensor stage
         self.coefs: dict[str, float] = {}
+        #: what the fits compare residuals and columns through (an equation-error filter effect's inverse;
+        #: :meth:`Effect.compare_filter`), set before the sensor stage; None: as read
+        self.compare: Callable[[np.ndarray], np.ndarray] | None = None
 
     @property
     def dt_s(self) -> float:
