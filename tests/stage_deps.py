@@ -16,7 +16,8 @@ to build its parser, but only the stage's own verb does work. So a stage's code 
   followed: it runs only when that model is asked for, and the stage asking for it names the
   package in its deps;
 
-with the other verb modules left out: cli.py only calls their ``register`` (argument parsers).
+with the other verb modules left out of cli.py's imports (cli.py only calls their ``register``, the
+argument parsers), but followed where the stage's own verb module imports them.
 A package's ``__init__.py`` counts when any of its modules is imported.
 """
 from __future__ import annotations
@@ -145,8 +146,9 @@ def stage_code(cmd: str) -> set[Path]:
         return set()
     others = {p for p in (PKG / "commands").glob("*.py") if p not in (verb, PKG / "commands" / "__init__.py",
                                                                           PKG / "commands" / "_help.py")}
-    # cli.py's own imports, but not through the other verbs
-    return closure([PKG / "cli.py", verb], skip=others)
+    # cli.py's own imports, but not through the other verbs; the verb's own imports in full (a verb
+    # module may use another's helpers: diagnose -> diagnose_trials -> simulate)
+    return closure([PKG / "cli.py"], skip=others | {verb}) | closure([verb], skip=set())
 
 
 def dvc_stages(dvc_yaml: Path = ROOT / "dvc.yaml") -> dict[str, dict]:

@@ -17,6 +17,13 @@ def test_import_analysis_follows_function_level_and_plugin_imports():
     assert "workbench/errors.py" in names and "workbench/cli.py" in names
     # other verbs' modules are not part of a stage's code (cli.py only builds their parsers) ...
     assert "workbench/commands/ui.py" not in names
+    # ... but another verb's module that the stage's verb imports is (diagnose -> diagnose_trials, which
+    # swims trials through simulate's helpers; sensitivity -> simulate): a hole the rule once had
+    diagnose = {str(p.relative_to(stage_deps.ROOT)) for p in stage_deps.stage_code("workbench diagnose --processed x")}
+    assert {"workbench/commands/diagnose_trials.py", "workbench/commands/simulate.py"} <= diagnose
+    assert "workbench/commands/ui.py" not in diagnose and "workbench/commands/train.py" not in diagnose
+    sensitivity = stage_deps.stage_code("workbench sensitivity --gaits x")
+    assert stage_deps.PKG / "commands" / "simulate.py" in sensitivity
     # ... and a verb that does not exist gives nothing rather than a guess
     assert stage_deps.stage_code("echo hello") == set()
 
