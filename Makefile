@@ -39,9 +39,13 @@ demo: setup
 	$(BIN)/dvc repro
 	@echo "== done: results under datasets/ (see README 'What the demo leaves')"
 
-# the 30 slowest tests are listed at the end (where CI time goes; docs/testing.md)
+# Two pytest-xdist workers, one test file each at a time (--dist loadfile: a module's fixtures stay in one
+# process), files in collection order (--no-loadscope-reorder: tests/conftest.py puts the longest files first,
+# so the 15-minute walk-through starts at once instead of last). TEST_WORKERS=0 runs everything in this process.
+# The 30 slowest tests are listed at the end (where CI time goes; docs/testing.md).
+TEST_WORKERS ?= 2
 test: setup system-deps
-	$(BIN)/python -m pytest -q -ra --durations=30
+	$(BIN)/python -m pytest -q -ra --durations=30 -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # under 2 minutes on an idle 2-core machine (docs/testing.md); the slowest tests are listed at the end.
 # The -p no: flags skip pytest plugins that third-party packages install and no test uses (about 1 s of

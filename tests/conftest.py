@@ -52,3 +52,29 @@ def isolated_state(_session_state, tmp_path_factory, monkeypatch):
     if "mlflow" in sys.modules:  # an earlier test may have set MLflow's process-wide URI to its own store
         sys.modules["mlflow"].set_tracking_uri(os.environ["MLFLOW_TRACKING_URI"])
     yield root
+
+
+# The longest test files, longest first (`make test` durations, 25 Nov 2026): collected first, so that with
+# `make test`'s two pytest-xdist workers (--dist loadfile, one file to one worker) they start at once and the
+# short files fill the other worker, instead of a long file starting last and leaving one worker idle.
+LONG_FILES = (
+    "integration/test_campaign_walkthrough.py",
+    "diagnose/test_diagnose_battery.py",
+    "diagnose/test_diagnose_acceptance.py",
+    "diagnose/test_servo_noref.py",
+    "faults/test_kills_more.py",
+)
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Long files first (stable: order inside a file and among the other files is kept)."""
+    tests = Path(__file__).parent
+
+    def rank(item) -> int:
+        try:
+            rel = Path(str(item.fspath)).resolve().relative_to(tests).as_posix()
+        except ValueError:
+            return len(LONG_FILES)
+        return LONG_FILES.index(rel) if rel in LONG_FILES else len(LONG_FILES)
+
+    items.sort(key=rank)

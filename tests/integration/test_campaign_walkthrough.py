@@ -82,6 +82,9 @@ def _shrink(project: Path) -> None:
         "retain": 2, "verify_direct": 2, "nsga2": {"pop_size": 8, "n_gen": 2},
         "tasks": {"straight": {"cap_s": 4.0, "hv_reference": [0.5, 1.0, 5.0]},
                   "turn": {"cap_s": 4.0, "hv_reference": [3.0, 1.6, 5.0]}}}})
+    # gait_sides.yaml extends gait.yaml but sets its own search size (test_metrics_plots_and_experiments
+    # relies on that): shrunk here like gait.yaml's, still its own
+    _set(p / "gait_sides.yaml", {"optimize": {"nsga2": {"pop_size": 8, "n_gen": 2}}})
     _set(p / "trials.yaml", {"pool": {"best": 1, "occlusion_fraction": 0.0},
                              "scoring": {"overlay": False}})
     _set(p / "plan.yaml", {"ensemble": {"members": 2, "train": {"trainer.max_epochs": 1,
