@@ -62,8 +62,12 @@ class LoadcellCrosstalk(Effect):
         if not nl.get("judge"):
             return []
         kept = {n.split(".", 1)[-1] for n in names}
-        chans = sorted({i for i, j in self.pairs if self.entry(i, j) in kept})
-        return [self._nuisance_name(i, k, d) for i in chans for k in range(6) if k != i
+        chans = {i for i, j in self.pairs if self.entry(i, j) in kept}
+        return [self._nuisance_name(i, k, d) for i, k, d in self._nuisance_keys(chans)]
+
+    def _nuisance_keys(self, chans) -> list[tuple[int, int, int]]:
+        """(reading channel, other channel, flow power) of each nuisance column, in column order."""
+        return [(i, k, d) for i in sorted(chans) for k in range(6) if k != i
                 for d in range(self.misfit_flow_degree + 1)]
 
     @staticmethod
@@ -158,18 +162,13 @@ class LoadcellCrosstalk(Effect):
             return
         resid = y - prediction
         powers = _flow_powers(rs, resid.shape[0], self.misfit_flow_degree)  # (d, B, 1)
-        for i in sorted({i for i, _ in self.pairs}):
-            s = np.zeros(6, bool)
-            s[i] = True
-            for k in range(6):
-                if k == i:
-                    continue
-                for d in range(self.misfit_flow_degree + 1):
-                    col = np.zeros_like(prediction)
-                    col[..., i] = resid[..., k] * powers[d]
-                    names.append(self._nuisance_name(i, k, d))
-                    cols.append(col)
-                    sup.append(s)
+        support = {i: np.arange(6) == i for i, _ in self.pairs}  # one mask per reading channel, shared
+        for i, k, d in self._nuisance_keys(support):
+            col = np.zeros_like(prediction)
+            col[..., i] = resid[..., k] * powers[d]
+            names.append(self._nuisance_name(i, k, d))
+            cols.append(col)
+            sup.append(support[i])
 
     def _misfit(self, ctx: Context, prediction: np.ndarray) -> list | None:
         """Per reading channel, the other channels' residuals on a training batch (and its fitted ticks); else None."""
