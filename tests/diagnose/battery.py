@@ -76,7 +76,7 @@ SINGLES = [
     Case("drift_fz_1.5mN_per_s", lambda: [P.drift("fz_n", 0.0015)], {"sensor_drift": {"rate_fz_n_per_s": 0.0015}}),
     Case("mount_mode_4.5Hz", lambda: [P.mode(4.5, 0.08)], {"structural_resonance": {"f_n_hz": 4.5, "zeta": 0.08}}),
     Case("static_hip_torque", lambda: [P.hip_weight(0.003)], {"leg_weight_buoyancy": {}},
-         family={"leg_weight_buoyancy": ("leg_weight_buoyancy", "link_weight_buoyancy")}),
+         family={"leg_weight_buoyancy": ("leg_weight_buoyancy", "link_weight_buoyancy", "weight_buoyancy_couple")}),
     Case("flow_tone_2Hz_5pc", lambda: [P.flow_tone(2.0, 0.05)],
          {"flow_unsteadiness": {"tone_hz": 2.0, "tone_fraction": 0.05}}),
     Case("vibration_3.3Hz", lambda: [P.vibration(3.3, {"fy_n": 0.01, "fz_n": 0.01})],

@@ -147,6 +147,42 @@ class LegWeightBuoyancy(Effect):
                 {"net_n": float(np.sqrt(max(v_net, 0))), "arm_m": float(np.sqrt(max(v_arm, 0)))})
 
 
+class WeightBuoyancyCouple(Effect):
+    """A neutrally buoyant leg whose centres of mass and buoyancy lie apart: a pure couple about the hip axis.
+
+    Weight and buoyancy are equal and opposite vertical loads; where they act at different
+    distances along the leg, they add no force but a couple in the leg's plane that turns with
+    the leg: ``tx += couple_nm X_Q / |Q|`` (the hip-to-Q line's horizontal share, the arm
+    :class:`LegWeightBuoyancy` uses). Both loads act in the leg's plane (thigh, calf and web
+    share its lateral offset within a centimetre), so they add no ty and no fz. A leg built
+    neutral (flotation foam, hollow links) is the usual case: its net load is near zero while
+    the couple is not, and :class:`LegWeightBuoyancy` then fits a net force and a lateral moment
+    (its ty) that are not there, which lose in fz and ty what the couple gains in tx.
+    """
+
+    name = "weight_buoyancy_couple"
+    ranges = {"couple_nm": (-0.2, 0.2)}
+    formula = "tx += couple_nm X_Q / |Q| (equal and opposite vertical loads apart along the leg)"
+
+    def linear_names(self):  # noqa: D102
+        return ["couple_nm"]
+
+    def hint(self, ev, params: dict) -> str:  # noqa: D102
+        tx = np.asarray(ev.by_angle["mean"])[:, 3]
+        return f"tx follows the hip angle (residual tx mean over hip-angle bins spans {np.nanmax(tx) - np.nanmin(tx):.3g} N m)"
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        kin = ctx.kin
+
+        def make():
+            _force, moment = kin.point_load_units()
+            out = np.zeros_like(moment)
+            out[..., 3] = moment[..., 3]
+            return out
+
+        return Terms(["couple_nm"], [kin._memo(("couple",), make)], [np.arange(6) == 3])
+
+
 class CirculatoryLag(Effect):
     """The circulatory (drag/normal) force through a first-order lag, tau = tau_chords c / max(|V_rel|, 0.05 m/s).
 
@@ -459,4 +495,4 @@ LIBRARY_RANK = 0  # place in the library's order (workbench.diagnose.library._in
 
 EFFECTS = (AddedMassError, DragCoefficientError, LinkDrag, Lift, LegWeightBuoyancy, CirculatoryLag,
                  NormalForceLaw, WagnerLag, RotatingAddedMass, AddedMassKC, LinkInertia, LateralForce,
-                 LinkWeightBuoyancy)
+                 LinkWeightBuoyancy, WeightBuoyancyCouple)
