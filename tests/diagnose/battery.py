@@ -64,17 +64,22 @@ class Case:
     family: dict[str, tuple[str, ...]] = field(default_factory=dict)
     #: out-of-library disturbances: (frequency_hz, channels) that must come back as unexplained lines
     lines: list[tuple[float, tuple[str, ...]]] = field(default_factory=list)
+    #: every plant acts on the readings (a crosstalk, a drift, a mount mode): a lab corrects its readings
+    #: with them, so "removed" is scored against the corrected readings (``Diagnosis.mse_after_corrected``)
+    sensor_side: bool = False
 
 
 SINGLES = [
     Case("servo_dead_60ms", lambda: [P.servo_dead_time(0.06)], {"servo_lag": {"tau_s": 0.06}}),
     Case("servo_dead_25ms", lambda: [P.servo_dead_time(0.025)], {"servo_lag": {"tau_s": 0.025}}),
     Case("crosstalk_fz_from_fy_3pc", lambda: [P.crosstalk("fz_n", "fy_n", 0.03)],
-         {"loadcell_crosstalk": {"x_fz_fy": 0.03}}),
+         {"loadcell_crosstalk": {"x_fz_fy": 0.03}}, sensor_side=True),
     Case("crosstalk_tx_from_fz_2pc", lambda: [P.crosstalk("tx_nm", "fz_n", 0.02)],
-         {"loadcell_crosstalk": {"x_tx_fz": 0.02}}),
-    Case("drift_fz_1.5mN_per_s", lambda: [P.drift("fz_n", 0.0015)], {"sensor_drift": {"rate_fz_n_per_s": 0.0015}}),
-    Case("mount_mode_4.5Hz", lambda: [P.mode(4.5, 0.08)], {"structural_resonance": {"f_n_hz": 4.5, "zeta": 0.08}}),
+         {"loadcell_crosstalk": {"x_tx_fz": 0.02}}, sensor_side=True),
+    Case("drift_fz_1.5mN_per_s", lambda: [P.drift("fz_n", 0.0015)], {"sensor_drift": {"rate_fz_n_per_s": 0.0015}},
+         sensor_side=True),
+    Case("mount_mode_4.5Hz", lambda: [P.mode(4.5, 0.08)], {"structural_resonance": {"f_n_hz": 4.5, "zeta": 0.08}},
+         sensor_side=True),
     Case("static_hip_torque", lambda: [P.hip_weight(0.003)], {"leg_weight_buoyancy": {}},
          family={"leg_weight_buoyancy": ("leg_weight_buoyancy", "link_weight_buoyancy", "weight_buoyancy_couple")}),
     Case("flow_tone_2Hz_5pc", lambda: [P.flow_tone(2.0, 0.05)],
@@ -115,7 +120,7 @@ def pair(a: str, b: str) -> Case:
     """Two cases planted together."""
     ca, cb = case(a), case(b)
     return Case(f"{a}+{b}", lambda: ca.plants() + cb.plants(), {**ca.expected, **cb.expected},
-                {**ca.family, **cb.family}, ca.lines + cb.lines)
+                {**ca.family, **cb.family}, ca.lines + cb.lines, ca.sensor_side and cb.sensor_side)
 
 
 def all_cases(with_reference: bool = True) -> list[Case]:
@@ -217,16 +222,29 @@ def score(c: Case, d, clean) -> dict:
     cb = np.array([clean.mse_before[k] for k in ch])
     ca = np.array([clean.mse_after[k] for k in ch])
     added = b - cb
-    removed = (b - a) - (cb - ca)
     hit = added > 0.05 * cb
-    share = float((removed[hit] / cb[hit]).sum() / (added[hit] / cb[hit]).sum()) if hit.any() else None
+    share = _share(b, a, cb, ca, hit)
+    # against the readings corrected by the claimed sensor-side effects (the clean diagnosis' own, if any)
+    corr, clean_corr = d.mse_after_corrected(), clean.mse_after_corrected()
+    share_corr = None if corr is None else _share(b, np.array([corr[k] for k in ch]), cb, ca if clean_corr is None
+                                                  else np.array([clean_corr[k] for k in ch]), hit)
     return {"case": c.name, "named": sorted(named), "hits": hits, "param_err": param_err, "extra": extra,
-            "lines_ok": lines_ok, "removed_share": share, "channels": [k for k, h in zip(ch, hit, strict=True) if h],
+            "lines_ok": lines_ok, "removed_share_output": share, "removed_share_corrected": share_corr,
+            "removed_share": share_corr if c.sensor_side and share_corr is not None else share, "channels": [k for k, h in zip(ch, hit, strict=True) if h],
             "unexplained": [(u.kind, u.channels, None if u.frequency_hz is None else round(u.frequency_hz, 2))
                             for u in d.unexplained],
             "ambiguous": {e.name: e.ambiguous_with for e in d.effects if e.ambiguous_with},
             "params": {e.name: {k: (round(v, 5) if isinstance(v, float) else v) for k, v in e.params.items()}
                        for e in d.effects}}
+
+
+def _share(b, a, cb, ca, hit) -> float | None:
+    """Share of the planted held-out error removed, in the channels the plant raised (each scaled by the clean error)."""
+    if not hit.any():
+        return None
+    removed = (b - a) - (cb - ca)
+    added = b - cb
+    return float((removed[hit] / cb[hit]).sum() / (added[hit] / cb[hit]).sum())
 
 
 def table(results: list[dict], title: str) -> str:
@@ -237,6 +255,8 @@ def table(results: list[dict], title: str) -> str:
         hits = ", ".join(f"{k}->{v or 'MISSED'}" for k, v in r["hits"].items()) or "-"
         pe = ", ".join(f"{k.split('.', 1)[1]} {v:.0%}" if v is not None else f"{k} ?" for k, v in r["param_err"].items())
         sh = "-" if r["removed_share"] is None else f"{r['removed_share']:.0%}"
+        if r.get("removed_share_corrected") is not None and r.get("removed_share_output") is not None:
+            sh += f" (output {r['removed_share_output']:.0%}, corrected {r['removed_share_corrected']:.0%})"
         lines.append(f"| {r['case']} | {hits} | {pe or '-'} | {sh} | {r['lines_ok'] or '-'} | "
                      f"{', '.join(r['extra']) or '-'} | {r['seconds']:.0f} |")
     planted = [v for r in results for v in r["hits"].values()]

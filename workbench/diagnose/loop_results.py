@@ -94,8 +94,21 @@ class Diagnosis:
     #: what was learned on the reference campaign (``--reference``), None without one
     reference: dict | None = None
 
+    def mse_after_corrected(self) -> dict[str, float] | None:
+        """Held-out MSE against the readings corrected by the claimed sensor-side effects (None: none, or one not invertible).
+
+        ``mse_after`` compares the reading with the augmented model's reading, H(M) for a mount
+        mode H: what is left there is H(truth - M), the base model's own misfit amplified near the
+        mode. Here each held-out run's residual goes back through the claimed filter and sensor
+        effects' inverses (:meth:`~workbench.diagnose.effects.base.Effect.reading_inverse`, last
+        stage first): the error of the physical model against the readings as a lab would
+        correct them with these effects.
+        """
+        return corrected_heldout_mse(self.residuals_after, self.augmented.config, self.augmented.coefs)
+
     def to_json(self) -> dict:
         """``diagnosis.json`` (data contract section 4) with extra keys."""
+        corrected = self.mse_after_corrected()
         rel = {c: _num(1 - self.mse_after[c] / self.mse_before[c]) if self.mse_before[c] > 0 else 0.0
                for c in CHANNELS}
         return {
@@ -103,6 +116,7 @@ class Diagnosis:
             "channels": CHANNELS,
             "mse_before": {c: _num(self.mse_before[c]) for c in CHANNELS},
             "mse_after": {c: _num(self.mse_after[c]) for c in CHANNELS},
+            "mse_after_corrected": None if corrected is None else {c: _num(corrected[c]) for c in CHANNELS},
             "effects": [e.to_json() for e in self.effects],
             "unexplained": [u.to_json() for u in self.unexplained],
             "campaign": self.campaign_id,
@@ -116,6 +130,32 @@ class Diagnosis:
             "runtime_s": round(self.runtime_s, 2),
             **({"reference": self.reference} if self.reference else {}),
         }
+
+
+def corrected_heldout_mse(runs, config, coefs: dict[str, float]) -> dict[str, float] | None:
+    """Held-out MSE per channel of the runs' residuals taken back through the config's sensor-side inverses.
+
+    None when the configuration holds no filter or sensor effect, or one whose reading is not
+    invertible (its :meth:`~workbench.diagnose.effects.base.Effect.reading_inverse` is None).
+    """
+    side = [a for a in config.actives if a.effect.stage in ("filter", "sensor")]
+    if not side:
+        return None
+    parts = []
+    for r in runs:
+        if not r.heldout:
+            continue
+        x = r.resid
+        for a in reversed(side):
+            inverse = a.effect.reading_inverse(dict(a.nl), coefs, r.dt_s)
+            if inverse is None:
+                return None
+            x = inverse(x)
+        parts.append(x[r.fit])
+    if not parts:
+        return None
+    e = np.concatenate(parts)
+    return {c: float((e[:, i] ** 2).mean()) for i, c in enumerate(CHANNELS)}
 
 
 def _isnum(v) -> bool:

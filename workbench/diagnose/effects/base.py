@@ -218,6 +218,17 @@ class Effect:
         """Sensor stage: columns that may depend on the predicted true wrench."""
         return Terms()
 
+    def reading_inverse(self, nl: dict, coefs: dict[str, float], dt_s: float) -> Callable[[np.ndarray], np.ndarray] | None:
+        """Filter and sensor stages: the map taking a residual of the reading back to the true wrench's.
+
+        The reading is the true wrench through the claimed sensor-side effects, so the model's
+        residual in the reading is that map applied to its residual in the true wrench; the
+        inverse (along axis -2 of (..., T, 6)) gives the error against the readings corrected by
+        the claimed effects (``mse_after_corrected``). ``coefs``: every fitted coefficient
+        (qualified names). None (default): not invertible, and no corrected error is reported.
+        """
+        return None
+
     def on_output(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:
         """An input effect acting on a causal model's output ``w`` (..., T, 6) to first order (identity)."""
         return w

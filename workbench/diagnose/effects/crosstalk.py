@@ -114,6 +114,14 @@ class LoadcellCrosstalk(Effect):
         pairs = [(i, j) for j in sorted(keep) for i in range(6) if i != j]
         return type(self)(pairs, aliases, self.misfit_guard, self.judge_beside_misfit, self.misfit_flow_degree)
 
+    def reading_inverse(self, nl: dict, coefs: dict, dt_s: float):
+        """Reading = (I + X) W: the residual through (I + X)^-1 along the channels."""
+        x = np.eye(6)
+        for i, j in self.pairs:
+            x[i, j] += float(coefs.get(f"{self.name}.{self.entry(i, j)}", 0.0))
+        inv_t = np.linalg.inv(x).T
+        return lambda r: r @ inv_t
+
     def sensor_terms(self, ctx: Context, nl: dict, prediction: np.ndarray) -> Terms:
         """One column per entry: the predicted source in the reading channel.
 

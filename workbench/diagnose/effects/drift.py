@@ -88,6 +88,10 @@ class SensorDrift(Effect):
         # the nuisance alone: what each run's level and unsettled ends gain without a drift
         return [{**nl, "null": 1.0}] if nl.get("judge") else []
 
+    def reading_inverse(self, nl: dict, coefs: dict, dt_s: float):
+        """An added drift: the prediction carries ``rate t`` already, so the residual is the corrected one."""
+        return lambda x: x
+
     def sensor_terms(self, ctx: Context, nl: dict, prediction: np.ndarray) -> Terms:  # noqa: D102
         t = np.maximum(ctx.time_s, 0.0)
         spans = self._settled(ctx.rs, prediction) if self.settling else None

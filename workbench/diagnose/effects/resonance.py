@@ -170,6 +170,11 @@ class StructuralResonance(Effect):
     def filter_wrench(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:  # noqa: D102
         return resonance_filter(w, dt_s, nl["f_n_hz"], nl["zeta"], axis=-2)
 
+    def reading_inverse(self, nl: dict, coefs: dict, dt_s: float):
+        """The inverse mode (whatever the form): the residual of the readings through the mount, undone."""
+        f_n, zeta = float(nl["f_n_hz"]), float(nl["zeta"])
+        return lambda x: inverse_mode(x, dt_s, f_n, zeta, axis=-2)
+
     def compare_filter(self, nl: dict, dt_s: float):
         """Equation-error form: residuals are compared through the inverse mode (None in output-error form)."""
         if self.form != "equation":
