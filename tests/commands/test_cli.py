@@ -83,3 +83,14 @@ def test_sub_verb_help_exits_0_with_a_description(argv, capsys):
 def test_no_verb_prints_help(capsys):
     assert main([]) == 0
     assert "usage" in capsys.readouterr().out
+
+
+def test_diagnose_help_names_every_effect_of_the_library(capsys):
+    """The library grows by entry points; the help must follow it (it listed 12 of 20 by hand before)."""
+    from workbench.diagnose.library import registry
+
+    text = " ".join(_help_text(["diagnose"], capsys).split())
+    names = list(registry())
+    assert len(names) >= 15
+    missing = [n for n in names if n not in text.replace("- ", "")]
+    assert not missing, missing

@@ -15,6 +15,14 @@ from workbench.commands.diagnose_trials import (  # noqa: F401 - the trajectory 
 )
 
 
+def _library_names() -> str:
+    """The effect library's names from the package metadata (entry points; no effect module is imported)."""
+    from importlib.metadata import entry_points
+
+    # workbench.diagnose.library.ENTRY_POINT_GROUP; not imported here: it loads numpy and scipy (2 s) on every verb
+    return ", ".join(sorted(e.name for e in entry_points(group="workbench.effects"))) or "none installed"
+
+
 def register(sub) -> None:
     """Add the ``diagnose`` verb."""
     p = add_verb(
@@ -22,9 +30,8 @@ def register(sub) -> None:
         description="Diagnose a leg force model on a water-tunnel campaign. The residual (measured minus "
         "predicted) of every channel is examined (spectrum, stroke-locked part, whiteness, cross-correlation "
         "with inputs and the model's own force, dependence on flow speed, angle, phase, time, zero flow and "
-        "rest); candidate effects from the documented library (docs/diagnose.md: servo_lag, added_mass_error, "
-        "drag_coefficient_error, tunnel_blockage, loadcell_crosstalk, leg_weight_buoyancy, sensor_drift, "
-        "structural_resonance, flow_unsteadiness, circulatory_lag, link_drag, lift) are fitted on training "
+        "rest); candidate effects from the effect library (docs/diagnose.md section 2; their names are listed "
+        "under --effects) are fitted on training "
         "runs and claimed only when they beat the noise on held-out runs. Writes OUT/diagnosis.json (data "
         "contract section 4), OUT/augmented_model.json (load it anywhere as `augmented:OUT`), OUT/report.md "
         "with figures, and logs the diagnosis to MLflow (experiment 'diagnose'). Settings: "
@@ -84,7 +91,7 @@ def register(sub) -> None:
     p.add_argument("--tunnel-area", type=float, metavar="M2",
                    help="the test section's cross-section (m^2) when the manifest has no [tunnel] test_section_area_m2: "
                    "tunnel_blockage then takes Maskell's prior (docs/diagnose.md)")
-    p.add_argument("--effects", metavar="LIST", help="comma-separated candidate effects (default: the whole library)")
+    p.add_argument("--effects", metavar="LIST", help=f"comma-separated candidate effects (default: the whole library: {_library_names()})")
     p.add_argument("--max-runs", type=int, metavar="N", help="analyse at most N runs (whole parameter sets)")
     p.add_argument("--skip-bad-runs", action="store_true", help="ingest the good runs of a campaign with bad ones")
     p.add_argument("--tracking-uri", metavar="URI", help="MLflow tracking URI (default: the project's store)")
