@@ -126,6 +126,117 @@ def test_a_worker_stopped_as_it_starts_a_trial_records_the_trials_owner_first(tm
     assert fail_stale(study) == []  # this process lives: neither trial is stale
 
 
+def _a_killed_workers_trial(storage, study, command: dict, worker: int) -> int:
+    """A RUNNING trial of ``command``'s ``worker`` whose process is gone (SIGKILLed mid-trial); returns its number."""
+    import optuna
+
+    from workbench.learn.tune_storage import OWNER_KEY
+
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # its pid names no process now (and were it reused, the start time 0 would not match)
+    t = study.ask({"x": optuna.distributions.FloatDistribution(0, 1)})
+    t.set_user_attr("command", command["id"])
+    t.set_user_attr("worker", worker)
+    storage.set_trial_system_attr(t._trial_id, OWNER_KEY, {"host": command["host"], "pid": gone.pid, "ctime": 0.0,
+                                                           "trial": t.number, "command": command})
+    return t.number
+
+
+def test_a_killed_workers_trial_is_queued_again_before_its_command_counts_what_the_worker_owes(tmp_path, monkeypatch):
+    """The fresh-clone failure of 2026-11-25 ({A: 3, B: 2} trials): a worker of command B failed A's killed trial and,
+    before B had queued its retry, A counted what its killed worker still owed. A FAIL trial with no retry yet counts
+    as finished, so A restarted the worker for one trial too few and ran 2 of its 3. This test plays B and A in that
+    order, in one process: B fails the trial, and A's count runs between B's FAIL and B's retry."""
+    import optuna
+
+    from workbench.learn.tune_storage import command_ended, command_record, fail_stale
+    from workbench.learn.tune_workers import _after_kill
+
+    journal = tmp_path / "s.journal"
+    a_store, b_store = _journal(journal), _journal(journal)
+    study_a = optuna.create_study(study_name="s", storage=a_store)
+    study_b = optuna.load_study(study_name="s", storage=b_store)
+    command_a = command_record("A")  # this process plays command A, running
+    a_store.command = command_a  # A's own storage: the command's process
+    b_store.command = {**command_a, "id": "B", "pid": 1}  # a worker of command B (another process)
+    done = study_a.ask({"x": optuna.distributions.FloatDistribution(0, 1)})  # worker 0's first trial, complete
+    done.set_user_attr("command", "A")
+    done.set_user_attr("worker", 0)
+    study_a.tell(done, 1.0)
+    killed = _a_killed_workers_trial(a_store, study_a, command_a, worker=0)
+
+    said, owed = [], []
+    real = b_store.get_heartbeat_stale_trial_callback()
+
+    def between_fail_and_retry(study, trial):  # B has failed the trial; A notices its worker's death now
+        owed.append(_after_kill(study_a, {"command": "A"}, 0, 2, -signal.SIGKILL, said.append))
+        real(study, trial)
+
+    monkeypatch.setattr(b_store, "get_heartbeat_stale_trial_callback", lambda: between_fail_and_retry)
+    try:
+        fail_stale(study_b)  # B's worker, as it starts its next trial (Optuna's optimize loop)
+        if not owed:  # B left the trial to its own command: A notices the death at its next look
+            owed.append(_after_kill(study_a, {"command": "A"}, 0, 2, -signal.SIGKILL, said.append))
+    finally:
+        command_ended(command_a)
+    trials = study_a.get_trials()
+    retries = [t for t in trials if t.system_attrs.get("failed_trial") == killed]
+    assert [t.state.name for t in trials if t.number == killed] == ["FAIL"]
+    assert len(retries) == 1 and retries[0].state.name == "WAITING", [(t.number, t.state.name) for t in trials]
+    # worker 0 owed 2 trials: one is COMPLETE, the killed one is replaced by its retry: 1 still owed
+    assert owed == [1], (owed, said)
+    assert said == [f"worker 0 was killed (SIGKILL); trial(s) [{killed}] failed and queued again"]
+
+
+def test_a_queued_retry_is_run_by_the_command_that_lost_the_trial_while_that_command_runs(tmp_path):
+    """Each command runs its own --n-trials; a retry replaces the failed trial of the command that lost it.
+    Another command's worker takes the retry only once that command has ended (on another machine: once the
+    retry has waited a grace period), and trials queued by hand are anyone's."""
+    import optuna
+
+    from workbench.learn.tune_storage import OWNER_KEY, QUEUED_KEY, command_ended, command_record, fail_stale
+
+    journal = tmp_path / "s.journal"
+    a_store, a_worker, b_worker = _journal(journal), _journal(journal), _journal(journal)
+    study_a = optuna.create_study(study_name="s", storage=a_store)
+    command_a = command_record("A")
+    a_store.command = a_worker.command = command_a  # A's process; one of its workers
+    b_worker.command = {**command_a, "id": "B", "pid": 1}
+    space = {"x": optuna.distributions.FloatDistribution(0, 1)}
+
+    def ask(storage):
+        return optuna.load_study(study_name="s", storage=storage).ask(space).number
+
+    def queued():
+        return [t.number for t in study_a.get_trials() if t.state.name == "WAITING"]
+
+    try:
+        killed = _a_killed_workers_trial(a_store, study_a, command_a, worker=0)
+        assert fail_stale(study_a) == [killed]  # A, noticing its worker's death
+        (retry,) = queued()
+        assert ask(b_worker) != retry and queued() == [retry]  # B makes a fresh trial, leaves A's retry
+        assert ask(a_worker) == retry  # A's worker takes it
+        killed = _a_killed_workers_trial(a_store, study_a, command_a, worker=1)
+        assert fail_stale(study_a) == [killed]
+        (retry,) = queued()
+    finally:
+        command_ended(command_a)
+    assert ask(b_worker) == retry  # A has ended: its retry is anyone's
+    # a retry of a command on another machine: its own for the grace period (30 s) after it was queued
+    elsewhere = {"id": "C", "host": "elsewhere", "pid": 1, "ctime": 0.0}
+    study_a.add_trial(optuna.trial.create_trial(
+        state=optuna.trial.TrialState.WAITING, params={"x": 0.5}, distributions=space, user_attrs={"command": "C"},
+        system_attrs={"failed_trial": 0, OWNER_KEY: {**elsewhere, "trial": 0, "command": elsewhere},
+                      QUEUED_KEY: time.time() - 5}))
+    (retry,) = queued()
+    assert ask(b_worker) != retry and queued() == [retry]
+    a_store.set_trial_system_attr(study_a.get_trials()[retry]._trial_id, QUEUED_KEY, time.time() - 40)
+    assert ask(b_worker) == retry
+    study_a.enqueue_trial({"x": 0.25}, user_attrs={"command": "A"})  # queued by hand, not a retry: anyone's
+    (hand,) = queued()
+    assert ask(b_worker) == hand
+
+
 def test_a_trial_silent_past_the_grace_period_is_failed(tmp_path):
     import optuna
 

@@ -187,6 +187,7 @@ def run_worker(spec: Mapping[str, Any], report: Callable[[str], None] | None = N
     from workbench.learn.tune_storage import TrialSeededTPE, resolve_storage
 
     storage, _ = resolve_storage(spec["storage"], spec["study"], tune)
+    storage.command = spec.get("command_record")  # whose worker this is: owner records, retries (tune_storage)
     # seeded per trial number: distinct across workers and commands; the constant liar keeps
     # concurrent workers from proposing the same point while a trial runs
     sampler = TrialSeededTPE(tune.sampler_seed, constant_liar=True)
@@ -213,7 +214,7 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, fresh: bool = False,
     import optuna
 
     from workbench import procs
-    from workbench.learn.tune_storage import fail_stale
+    from workbench.learn.tune_storage import command_ended, command_record, fail_stale
 
     procs.install()  # SIGTERM/SIGHUP clean up as Ctrl-C does: workers stopped, trials failed, runs ended
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -221,6 +222,8 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, fresh: bool = False,
     study, storage, where = _open_study(tune, fresh)
     baseline = [t.number for t in study.get_trials(deepcopy=False)]
     command = uuid.uuid4().hex[:12]
+    # this process is the command: it fails and queues again its own killed workers' trials (tune_storage)
+    storage.command = record = command_record(command)
     fail_stale(study)  # trials of workers that died earlier: failed (and queued again) now
     if report:
         report(f"study {tune.study!r} in {where}: {len(baseline)} earlier trial(s); running {tune.n_trials} "
@@ -230,7 +233,8 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, fresh: bool = False,
     try:
         spec = {"config": base.to_dict(), "tune": _tune_dict(tune), "storage": where, "study": tune.study,
                 "parent_run_id": parent_id, "tracking_uri": tracking_uri, "total": tune.n_trials,
-                "baseline": baseline, "n_workers": tune.workers, "command": command}
+                "baseline": baseline, "n_workers": tune.workers, "command": command,
+                "command_record": record}
         elapsed = _run_trials(spec, tune, report, study)
         fail_stale(study)
         summary = summarise(optuna.load_study(study_name=tune.study, storage=storage), set(baseline), elapsed,
@@ -245,6 +249,7 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, fresh: bool = False,
         status = "KILLED"
         raise
     finally:
+        command_ended(record)
         if parent_id is not None:
             mlflow.set_tag("state", {"FINISHED": "complete", "KILLED": "interrupted"}.get(status, "failed"))
             mlflow.end_run(status=status)

@@ -21,6 +21,22 @@ A stale trial that failed is retried once (Optuna's ``RetryHeartbeatStaleTrialCa
 copy with the same parameters, which the next worker runs first; ``system_attrs`` of the copy
 name the failed trial).
 
+**Commands.** Several ``workbench tune`` commands may share a study; each promises its own
+``n_trials``, and a retry replaces the failed trial *of the command that lost it*. So the owner
+record also names the worker's command (:func:`command_record`: id, host, pid, start time; the
+storage's ``command`` attribute, set by :mod:`workbench.learn.tune`), and
+
+- a killed worker's trial whose command still runs on this machine is failed and queued again
+  by that command's own process (it notices the death within half a second and then counts
+  what the worker still owes): other processes leave it alone until the grace period. Were
+  another process to fail it, the command could count the FAIL trial as finished in the moment
+  before its retry was queued and restart its worker for one trial too few;
+- a queued retry is taken only by a worker of the command that lost the trial while that
+  command runs (on this machine: its process lives; on another machine: for ``grace_period``
+  seconds after it was queued, ``wb:queued_at``); after that, any worker takes it and it counts
+  as that worker's command's trial. Retries of trials without a command, and trials queued by
+  hand (``enqueue_trial``), are taken by anyone.
+
 Optuna implements heartbeats for its RDB storage (PostgreSQL, SQLite) only. For the journal
 file the same interface is implemented here: a heartbeat is a trial system attribute
 ``wb:heartbeat`` (one journal line per beat).
@@ -50,6 +66,7 @@ if TYPE_CHECKING:
 
 HEARTBEAT_KEY = "wb:heartbeat"
 OWNER_KEY = "wb:owner"
+QUEUED_KEY = "wb:queued_at"
 
 
 def trial_seed(sampler_seed: int, number: int) -> int:
@@ -78,6 +95,30 @@ def _me() -> dict:
     return {"host": socket.gethostname(), "pid": os.getpid(), "ctime": psutil.Process().create_time()}
 
 
+#: ids of the tune commands this process runs now (a process may run several in turn: the API, tests)
+_RUNNING: set[str] = set()
+
+
+def command_record(command_id: str) -> dict:
+    """The record of a tune command this process starts running: its id, host, pid and start time."""
+    _RUNNING.add(command_id)
+    return {"id": command_id, **_me()}
+
+
+def command_ended(record: dict) -> None:
+    """The command of ``record`` (run by this process) has ended: its trials and retries are anyone's now."""
+    _RUNNING.discard(record.get("id"))
+
+
+def command_runs_here(command: dict) -> bool:
+    """Whether the tune command of ``command`` (a :func:`command_record`) runs on this machine now."""
+    if command.get("host") != socket.gethostname():
+        return False
+    if command.get("pid") == os.getpid():
+        return command.get("id") in _RUNNING
+    return not owner_is_dead(command)
+
+
 def owner_is_dead(owner: Any) -> bool:
     """True when ``owner`` (host, pid, process start time) names a process of this machine that is gone."""
     import psutil
@@ -97,6 +138,8 @@ class _LocalOwner:
     """Mixin: remember which process runs a trial, and call its trial stale as soon as that process is gone."""
 
     _owned: set
+    #: the tune command this process works for (:func:`command_record`); None outside ``workbench tune``
+    command: dict | None = None
 
     # A trial made RUNNING and its owner are recorded together: a Ctrl-C or SIGTERM arriving in
     # between waits until the owner is written (procs.deferred_signals). Otherwise a worker stopped
@@ -114,6 +157,8 @@ class _LocalOwner:
     def set_trial_state_values(self, trial_id: int, state, values=None) -> bool:
         if state != TrialState.RUNNING:
             return super().set_trial_state_values(trial_id, state, values)
+        if self._reserved_for_another_command(trial_id):
+            return False  # as if another worker had taken it: Optuna goes on to the next queued trial
         from workbench import procs
 
         with procs.deferred_signals():
@@ -127,14 +172,43 @@ class _LocalOwner:
             return
         self._owned.add(trial_id)
         number = self.get_trial_number_from_id(trial_id)
-        self.set_trial_system_attr(trial_id, OWNER_KEY, {**_me(), "trial": number})
+        self.set_trial_system_attr(trial_id, OWNER_KEY, {**_me(), "trial": number, "command": self.command})
+
+    def _is_command(self, command: dict) -> bool:
+        """Whether this process is ``command``'s own process (not one of its workers)."""
+        mine = self.command
+        return bool(mine) and mine.get("id") == command.get("id") and mine.get("pid") == os.getpid()
+
+    def _left_to_its_command(self, owner: Any) -> bool:
+        """A dead worker's trial is failed by its command while that command runs here (see the module text)."""
+        command = owner.get("command") if isinstance(owner, dict) else None
+        if not isinstance(command, dict) or self._is_command(command):
+            return False
+        return command_runs_here(command)
+
+    def _reserved_for_another_command(self, trial_id: int) -> bool:
+        """A queued retry of a trial of another command that still runs (see the module text)."""
+        if not self.command:
+            return False
+        t = self.get_trial(trial_id)
+        lost = t.user_attrs.get("command")
+        if t.state != TrialState.WAITING or "failed_trial" not in t.system_attrs or lost in (None, self.command["id"]):
+            return False
+        command = (t.system_attrs.get(OWNER_KEY) or {}).get("command")
+        if not isinstance(command, dict) or command.get("id") != lost:
+            return False
+        if command.get("host") == socket.gethostname():
+            return command_runs_here(command)
+        queued = t.system_attrs.get(QUEUED_KEY)
+        return isinstance(queued, (int, float)) and time.time() - queued < float(self.grace_period or 0)
 
     def _dead_owner_ids(self, study_id: int) -> list[int]:
         out = []
         for t in self.get_all_trials(study_id, deepcopy=False, states=(TrialState.RUNNING,)):
             owner = t.system_attrs.get(OWNER_KEY)
             # a retried trial's copy carries its predecessor's owner: only this trial's own counts
-            if isinstance(owner, dict) and owner.get("trial") == t.number and owner_is_dead(owner):
+            if isinstance(owner, dict) and owner.get("trial") == t.number and owner_is_dead(owner) \
+                    and not self._left_to_its_command(owner):
                 out.append(t._trial_id)
         return out
 
@@ -164,7 +238,8 @@ class HeartbeatJournalStorage(_LocalOwner, JournalStorage, BaseHeartbeat):
             if t._trial_id in dead:
                 stale.append(t._trial_id)
             elif isinstance(beat, dict) and beat.get("trial") == t.number:
-                if owner_is_dead(beat) or now - float(beat["t"]) > self.grace_period:
+                gone = owner_is_dead(beat) and not self._left_to_its_command(t.system_attrs.get(OWNER_KEY))
+                if gone or now - float(beat["t"]) > self.grace_period:
                     stale.append(t._trial_id)
             elif t.datetime_start is not None:
                 start = t.datetime_start.timestamp()
@@ -203,14 +278,19 @@ class HeartbeatRDBStorage(_LocalOwner, RDBStorage):
 
 
 def retry_callback(max_retry: int):
-    """Optuna's retry of failed stale trials (``max_retry`` copies at most)."""
+    """Optuna's retry of failed stale trials (``max_retry`` copies at most), the copy stamped ``wb:queued_at``."""
     import warnings
 
     import optuna
 
+    class QueuedRetry(optuna.storages.RetryHeartbeatStaleTrialCallback):
+        def __call__(self, study, trial) -> None:
+            trial.system_attrs = {**trial.system_attrs, QUEUED_KEY: time.time()}
+            super().__call__(study, trial)
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        return optuna.storages.RetryHeartbeatStaleTrialCallback(max_retry=max_retry)
+        return QueuedRetry(max_retry=max_retry)
 
 
 def retried_numbers(trials) -> set[int]:
