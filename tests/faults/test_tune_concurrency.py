@@ -126,6 +126,17 @@ def test_a_worker_stopped_as_it_starts_a_trial_records_the_trials_owner_first(tm
     assert fail_stale(study) == []  # this process lives: neither trial is stale
 
 
+def _storage(tmp_path, kind: str):
+    """A journal file or an RDB (SQLite standing in for PostgreSQL: the same storage class) of study "s"."""
+    from workbench.learn.tune import TuneCfg
+    from workbench.learn.tune_storage import resolve_storage
+
+    if kind == "journal":
+        return _journal(tmp_path / "s.journal")
+    return resolve_storage(f"sqlite:///{tmp_path / 's.db'}", "s", TuneCfg(heartbeat_interval_s=10,
+                                                                          grace_period_s=30))[0]
+
+
 def _a_killed_workers_trial(storage, study, command: dict, worker: int) -> int:
     """A RUNNING trial of ``command``'s ``worker`` whose process is gone (SIGKILLed mid-trial); returns its number."""
     import optuna
@@ -142,7 +153,9 @@ def _a_killed_workers_trial(storage, study, command: dict, worker: int) -> int:
     return t.number
 
 
-def test_a_killed_workers_trial_is_queued_again_before_its_command_counts_what_the_worker_owes(tmp_path, monkeypatch):
+@pytest.mark.parametrize("kind", ["journal", "rdb"])
+def test_a_killed_workers_trial_is_queued_again_before_its_command_counts_what_the_worker_owes(tmp_path, monkeypatch,
+                                                                                             kind):
     """The fresh-clone failure of 2026-11-25 ({A: 3, B: 2} trials): a worker of command B failed A's killed trial and,
     before B had queued its retry, A counted what its killed worker still owed. A FAIL trial with no retry yet counts
     as finished, so A restarted the worker for one trial too few and ran 2 of its 3. This test plays B and A in that
@@ -152,9 +165,9 @@ def test_a_killed_workers_trial_is_queued_again_before_its_command_counts_what_t
     from workbench.learn.tune_storage import command_ended, command_record, fail_stale
     from workbench.learn.tune_workers import _after_kill
 
-    journal = tmp_path / "s.journal"
-    a_store, b_store = _journal(journal), _journal(journal)
+    a_store = _storage(tmp_path, kind)
     study_a = optuna.create_study(study_name="s", storage=a_store)
+    b_store = _storage(tmp_path, kind)
     study_b = optuna.load_study(study_name="s", storage=b_store)
     command_a = command_record("A")  # this process plays command A, running
     a_store.command = command_a  # A's own storage: the command's process
@@ -188,7 +201,8 @@ def test_a_killed_workers_trial_is_queued_again_before_its_command_counts_what_t
     assert said == [f"worker 0 was killed (SIGKILL); trial(s) [{killed}] failed and queued again"]
 
 
-def test_a_queued_retry_is_run_by_the_command_that_lost_the_trial_while_that_command_runs(tmp_path):
+@pytest.mark.parametrize("kind", ["journal", "rdb"])
+def test_a_queued_retry_is_run_by_the_command_that_lost_the_trial_while_that_command_runs(tmp_path, kind):
     """Each command runs its own --n-trials; a retry replaces the failed trial of the command that lost it.
     Another command's worker takes the retry only once that command has ended (on another machine: once the
     retry has waited a grace period), and trials queued by hand are anyone's."""
@@ -196,9 +210,9 @@ def test_a_queued_retry_is_run_by_the_command_that_lost_the_trial_while_that_com
 
     from workbench.learn.tune_storage import OWNER_KEY, QUEUED_KEY, command_ended, command_record, fail_stale
 
-    journal = tmp_path / "s.journal"
-    a_store, a_worker, b_worker = _journal(journal), _journal(journal), _journal(journal)
+    a_store = _storage(tmp_path, kind)
     study_a = optuna.create_study(study_name="s", storage=a_store)
+    a_worker, b_worker = _storage(tmp_path, kind), _storage(tmp_path, kind)
     command_a = command_record("A")
     a_store.command = a_worker.command = command_a  # A's process; one of its workers
     b_worker.command = {**command_a, "id": "B", "pid": 1}
@@ -351,7 +365,10 @@ def _two_commands_one_killed_worker(tmp_path, storage_arg: str):
     assert states[killed["trial"]] == "FAIL"
     retries = [t for t in trials if t.system_attrs.get("failed_trial") == killed["trial"]]
     assert len(retries) == 1 and retries[0].state.name in ("COMPLETE", "PRUNED")
-    assert retries[0].params == next(t.params for t in trials if t.number == killed["trial"])
+    lost = next(t for t in trials if t.number == killed["trial"])
+    assert retries[0].params == lost.params
+    # the retry replaced the failed trial of the command that lost it (A), which was still running
+    assert retries[0].user_attrs["command"] == lost.user_attrs["command"], (lost.user_attrs, retries[0].user_attrs)
     # each command ran exactly its 3 trials (a failed trial counted by its retry)
     commands = {}
     for t in trials:

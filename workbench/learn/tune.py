@@ -20,8 +20,9 @@ Several commands may share one study at once (on one machine or many): each comm
 (``command`` user attribute of its trials), counts and reports only its own trials ("trial 3/4"),
 and every trial draws its sampler seed from its own trial number (:mod:`workbench.learn.tune_storage`),
 so no two workers of any command repeat each other's draws. Workers record heartbeats; a trial
-whose worker died (SIGKILL, a lost machine) is failed and retried once, and the command restarts
-a worker that was killed for the trials it still owed. Workers die with the command (SIGINT,
+whose worker died (SIGKILL, a lost machine) is failed and retried once, the retry run by the
+command that lost the trial while it runs, and the command restarts a worker that was killed for
+the trials it still owed. Workers die with the command (SIGINT,
 SIGTERM, even its SIGKILL: :mod:`workbench.procs`), and their specification travels on stdin, so
 nothing is left in the temp folder. Each trial is one
 ``train(cfg)`` call with fewer epochs and windows and no test scoring, a child MLflow run (pruned

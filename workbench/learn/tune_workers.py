@@ -6,7 +6,9 @@ so that no trial is lost or run twice (:func:`spawn_workers`). A worker's specif
 its stdin (nothing is written to the temp folder); the worker loads the shared study and runs
 :func:`workbench.learn.tune.run_worker`. Workers die with the command (SIGINT, SIGTERM, even its
 SIGKILL: :mod:`workbench.procs`); a worker killed by a signal from outside has its running trial
-failed and queued again at once and is restarted for the trials of its share still owed.
+failed and queued again at once, by this command's process and no other while it runs (so the
+retry exists before the worker's debt is counted: :mod:`workbench.learn.tune_storage`), and is
+restarted for the trials of its share still owed; the retry is run by this command's workers.
 """
 
 from __future__ import annotations
