@@ -12,6 +12,7 @@ one-line message naming file and key, and which old ``except ValueError`` caller
 from __future__ import annotations
 
 import ast
+import functools
 import re
 from pathlib import Path
 
@@ -57,18 +58,29 @@ def _name(node: ast.expr | None) -> str | None:
 
 def _functions(tree: ast.AST):
     """(enclosing function name or "", node) for every node of ``tree``."""
-    def walk(node, fn):
+    stack = [(tree, "")]
+    while stack:
+        node, fn = stack.pop()
         for child in ast.iter_child_nodes(node):
             name = child.name if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)) else fn
             yield name, child
-            yield from walk(child, name)
-    yield from walk(tree, "")
+            stack.append((child, name))
+
+
+@functools.lru_cache(maxsize=None)
+def _parsed_text(src: str, filename: str) -> tuple[tuple[str, ast.AST], ...]:
+    """Every node of a module with its enclosing function (parsed and walked once per source text)."""
+    return tuple(_functions(ast.parse(src, filename=filename)))
+
+
+def _nodes(path: Path) -> tuple[tuple[str, ast.AST], ...]:
+    return _parsed_text(path.read_text(encoding="utf-8"), str(path))
 
 
 def _untyped_raises(path: Path, allowed: tuple[tuple[str, str], ...] = ()) -> list[tuple[int, str]]:
     """(line, class) of each raise of an untyped class, but in protocol methods and ``allowed`` (function, class)."""
     out = []
-    for fn, node in _functions(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+    for fn, node in _nodes(path):
         if isinstance(node, ast.Raise) and node.exc is not None and _name(node.exc) in UNTYPED:
             protocol = fn.startswith("__") and fn.endswith("__") and fn not in NOT_PROTOCOL
             if not protocol and (fn, _name(node.exc)) not in allowed:
@@ -79,7 +91,7 @@ def _untyped_raises(path: Path, allowed: tuple[tuple[str, str], ...] = ()) -> li
 def _relabelled(path: Path, allowed: tuple[str, ...] = ()) -> list[tuple[int, str]]:
     """(line, caught classes) of each ``except <parameter fault>: raise ContractError`` but in ``allowed`` functions."""
     out = []
-    for fn, node in _functions(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+    for fn, node in _nodes(path):
         if isinstance(node, ast.ExceptHandler) and node.type is not None and fn not in allowed:
             caught = {_name(t) for t in (node.type.elts if isinstance(node.type, ast.Tuple) else [node.type])}
             raised = {_name(r.exc) for stmt in node.body for r in ast.walk(stmt) if isinstance(r, ast.Raise)}
@@ -92,7 +104,7 @@ def _convergence_raises(path: Path) -> list[tuple[int, str]]:
     """(line, class) of each raise whose message says a solver did not converge but is no ConvergenceError."""
     src = path.read_text(encoding="utf-8")
     out = []
-    for node in ast.walk(ast.parse(src, filename=str(path))):
+    for _fn, node in _parsed_text(src, str(path)):
         if isinstance(node, ast.Raise) and isinstance(node.exc, ast.Call) and _name(node.exc) != "ConvergenceError":
             if CONVERGENCE.search(ast.get_source_segment(src, node.exc) or ""):
                 out.append((node.lineno, _name(node.exc)))

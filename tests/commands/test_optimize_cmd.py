@@ -66,6 +66,7 @@ def test_optimize_writes_contract_files_and_an_mlflow_run(tmp_path, capsys):
     assert {"straight-ef.json", "straight-ef", "best_table.json"} <= arts
 
 
+@pytest.mark.slow
 def test_same_seed_same_gait_file(tmp_path):
     params = _params(tmp_path)
     files = []

@@ -155,6 +155,7 @@ def campaign():
     return prepare(pl.concat(rows), DataSettings(heldout_fraction=0.3, tick_stride=1))
 
 
+@pytest.mark.slow
 def test_planted_force_effects_come_back_with_their_parameters(campaign):
     effects = [NormalForceLaw(), WagnerLag(), RotatingAddedMass(), AddedMassKC(), LinkInertia(), LateralForce(),
                LinkWeightBuoyancy(), AddedMassError(), DragCoefficientError()]

@@ -116,7 +116,8 @@ def test_cli_writes_everything_and_logs_to_mlflow(tmp_path):
     assert runs.iloc[0]["metrics.effect.sensor_drift.rate_fz_n_per_s"] == pytest.approx(0.002, rel=0.2)
 
 
-def test_cli_reads_a_processed_file_and_refuses_bad_input(tmp_path, capsys):
+@pytest.mark.slow
+def test_cli_reads_a_processed_file(tmp_path):
     from workbench.ingest import ingest_campaign, write_processed
 
     camp = campaign(tmp_path, (), n_sets=6)
@@ -125,13 +126,22 @@ def test_cli_reads_a_processed_file_and_refuses_bad_input(tmp_path, capsys):
     out = tmp_path / "d"
     assert main(["diagnose", "--processed", str(pq), "--out", str(out), "--no-mlflow", "--no-figures"]) == 0
     assert json.loads((out / "diagnosis.json").read_text())["effects"] == []
+
+
+def test_cli_refuses_bad_input_in_one_line_and_leaves_the_previous_result(tmp_path, capsys):
+    camp = campaign(tmp_path, (), n_sets=6)
+    out = tmp_path / "d"
+    out.mkdir()
+    (out / "diagnosis.json").write_text('{"previous": "result"}')
     before = (out / "diagnosis.json").read_text()
     # bad input: one line naming the file, exit status 2, previous result intact
     assert main(["diagnose", "--processed", str(tmp_path / "missing.parquet"), "--out", str(out), "--no-mlflow"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1].startswith("error:") and "missing.parquet" in err[-1]
+    assert err[-1].startswith("error:") and "missing.parquet" in err[-1] and len(err[-1].splitlines()) == 1
     assert main(["diagnose", "--campaign", str(camp), "--model", "no-such-model", "--out", str(out),
                  "--no-mlflow"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error:") and "no-such-model" in err[-1]
     assert (out / "diagnosis.json").read_text() == before
 
 

@@ -47,6 +47,7 @@ def test_paper_space_has_no_mean_yaw_torque_at_constant_flow_but_per_side_ranges
     assert np.all(np.abs(tz_side[:, 0]) > 1e-3)
 
 
+@pytest.mark.slow
 def test_paper_gaits_turn_slowly_and_a_per_side_gait_turns_both_ways(robot):
     rng = np.random.default_rng(0)
     paper = GaitSpace()

@@ -118,6 +118,7 @@ def test_a_model_with_memory_converges_and_matches_tick_by_tick_stepping(robot):
     assert np.hypot(plain.x_m - tr.x_m, plain.y_m - tr.y_m)[:, -1].max() > 0.02
 
 
+@pytest.mark.slow
 def test_a_result_that_did_not_converge_says_so(robot):
     gaits = paper_space_gaits(3, seed=2)
     short = simulate(gaits, EF, robot, duration_s=30.0, max_iter=2)

@@ -61,6 +61,7 @@ def test_two_workers_share_one_study_without_lost_or_duplicated_trials(config, p
     assert sorted(t.number for t in study.get_trials()) == [0, 1, 2, 3, 4]
 
 
+@pytest.mark.slow
 def test_a_pruned_trial_ends_its_run_killed_and_tagged_pruned(config, project, parquet):
     import dataclasses
 
