@@ -137,10 +137,14 @@ class Problem:
             d = self.design(rs, config, coefs, names, surrogate=surrogate)
             parts.append(lsq.accumulate(d, rs, blocks, names if names is not None else d.names))
         gr = lsq.concat(parts)
-        # Gaussian priors an effect puts on its linear parameters (a blockage's Maskell factor)
-        prior = {f"{a.name}.{k}": v for a in config.actives for k, v in (getattr(a.effect, "priors", dict)() or {}).items()}
-        gr.prior = {k: v for k, v in prior.items() if k in gr.names} or None
+        gr.prior = self.priors(config, gr.names)
         return gr
+
+    @staticmethod
+    def priors(config: Configuration, names: list[str]) -> dict | None:
+        """Gaussian priors the effects of ``config`` put on the linear parameters in ``names`` (a blockage's Maskell factor)."""
+        prior = {f"{a.name}.{k}": v for a in config.actives for k, v in (getattr(a.effect, "priors", dict)() or {}).items()}
+        return {k: v for k, v in prior.items() if k in names} or None
 
     def fit(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
             sets: str = "all", fixed: dict | None = None, surrogate: bool | None = None) -> lsq.Fit:

@@ -17,7 +17,8 @@ from workbench.diagnose.selection_search import parabola, search
 def refine(s: SelectionSettings, problem, config, coefs, names, current):
     """Re-search each nonlinear parameter with the others at their final values (one round).
 
-    Always with the model itself (no lagged-output surrogate): these are the reported values.
+    Always with the model itself (no lagged-output surrogate) and the whole design (no effect's faster
+    search criterion): these are the reported values.
     """
     surrogate = getattr(problem, "surrogate_search", False)
     problem.surrogate_search = False
@@ -36,9 +37,9 @@ def refine(s: SelectionSettings, problem, config, coefs, names, current):
                 # early step can sit in its old basin (a dead time found as a short pure lag):
                 # its whole grid is searched again, the current values added to it
                 grids = {p.name: tuple(sorted({*p.grid, float(a.nl[p.name])})) for p in a.effect.search}
-                nl, _ = search(s, problem, rest, coefs, names, a.effect, grids=grids)
+                nl, _ = search(s, problem, rest, coefs, names, a.effect, grids=grids, fast=False)
             else:
-                nl, _ = search(s, problem, rest, coefs, names, a.effect, start=dict(a.nl))
+                nl, _ = search(s, problem, rest, coefs, names, a.effect, start=dict(a.nl), fast=False)
             config = rest.with_effect(Active(a.effect, nl))
     finally:
         problem.surrogate_search = surrogate

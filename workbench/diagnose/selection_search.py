@@ -21,21 +21,28 @@ from workbench.diagnose.selection_records import SelectionSettings
 
 
 def search(s: SelectionSettings, problem, config: Configuration, coefs: dict, names: list[str], effect: Effect,
-           grids: dict[str, tuple] | None = None, start: dict | None = None) -> tuple[dict, dict]:
-    """Nonlinear parameters of ``effect`` minimising the training SSE (linear terms refitted each time)."""
+           grids: dict[str, tuple] | None = None, start: dict | None = None, fast: bool = True) -> tuple[dict, dict]:
+    """Nonlinear parameters of ``effect`` minimising the training SSE (linear terms refitted each time).
+
+    ``fast``: through the effect's own faster criterion where it has one (:meth:`Effect.search_grams`,
+    for screening candidates); False: through the whole design (the reported values' final refinement).
+    """
     params = effect.search
     pnames = [p.name for p in params]
     w = problem.weights
     hac = problem.settings.hac_lags
     cache: dict[tuple, float] = {}
+    extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
+    fast = effect.search_grams(problem, config, coefs, names + extra) if fast else None
 
     def objective(values) -> float:
         key = tuple(round(float(v), 10) for v in values)
         if key not in cache:
             nl = dict(zip(pnames, key, strict=False))
-            cfg = config.with_effect(Active(effect, nl))
-            extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
-            gr = problem.grams(cfg, coefs, names + extra, sets="search")
+            if fast is not None:
+                gr = fast(nl)
+            else:
+                gr = problem.grams(config.with_effect(Active(effect, nl)), coefs, names + extra, sets="search")
             cache[key] = float(lsq.fit(gr, w, hac).sse_block.sum())
         return cache[key]
 

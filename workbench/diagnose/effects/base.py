@@ -277,6 +277,17 @@ class Effect:
         """
         return nl
 
+    def search_grams(self, problem, config, coefs: dict, names: list[str]):
+        """A faster objective for this effect's search: ``nl -> Grams`` on the search runs (None: the plain one).
+
+        The plain search builds the whole design of ``config`` plus this effect at every
+        evaluation (``Problem.grams``). An effect whose searched values enter the fit through a
+        few fixed arrays may build them once here (``config``: without the effect; ``names``: the
+        columns fitted, with the effect's own). Only the search's criterion may change by it: the
+        candidate is fitted and judged through the plain design afterwards.
+        """
+        return None
+
     def refusal(self, params: dict, settings) -> str | None:
         """Why these fitted values are another effect in disguise (None when they are not).
 
