@@ -33,14 +33,14 @@ def search(s: SelectionSettings, problem, config: Configuration, coefs: dict, na
     hac = problem.settings.hac_lags
     cache: dict[tuple, float] = {}
     extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
-    fast = effect.search_grams(problem, config, coefs, names + extra) if fast else None
+    quick = effect.search_grams(problem, config, coefs, names + extra) if fast else None
 
     def objective(values) -> float:
         key = tuple(round(float(v), 10) for v in values)
         if key not in cache:
             nl = dict(zip(pnames, key, strict=False))
-            if fast is not None:
-                gr = fast(nl)
+            if quick is not None:
+                gr = quick(nl)
             else:
                 gr = problem.grams(config.with_effect(Active(effect, nl)), coefs, names + extra, sets="search")
             cache[key] = float(lsq.fit(gr, w, hac).sse_block.sum())

@@ -209,6 +209,7 @@ class StructuralResonance(Effect):
             if d.compare is not None or d.fit_offset is not None:
                 return None
             parts.append((rs, blocks, d, d.base, *_derivatives(rs.y, rs.dt_s, -2)))
+
         def grams(nl: dict):
             wn = 2 * np.pi * float(nl["f_n_hz"])
             a1, a2 = 2 * float(nl["zeta"]) / wn, 1 / (wn * wn)
