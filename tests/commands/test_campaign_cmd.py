@@ -107,3 +107,37 @@ def test_add_does_not_dvc_add_a_stage_output(project, capsys):
     assert main(["campaign", "add", str(towing), "--no-dvc"]) == 0
     assert load_registry(project) == {"tunnel": ["demo-tunnel"], "towing": ["demo-towing"]}
     assert not list((project / "datasets/raw").glob("*.dvc"))
+
+
+@pytest.mark.slow
+def test_add_completes_after_a_dvc_add_killed_mid_write(project, capsys):
+    """DVC rewrites `.dvc/tmp/rwlock` and the campaign's .dvc file in place (open, then write): a `dvc add`
+    killed in between leaves them empty (the CI failure of stop 25: "Unable to read RWLock-file")."""
+    root = write_campaign(project / "datasets/raw/tunnel-cut", [RunPlan("r1"), RunPlan("r2")])
+    before = tree_hash(root)
+    (project / ".dvc/tmp").mkdir(exist_ok=True)
+    (project / ".dvc/tmp/rwlock").write_text("")  # what a kill between open and write leaves
+    (project / "datasets/raw/tunnel-cut.dvc").write_text("")
+    assert main(["campaign", "add", str(root)]) == 0
+    err = capsys.readouterr().err
+    assert "DVC's lock record was cut" in err and "running dvc add again" in err and "tracked with DVC" in err
+    assert yaml.safe_load((project / "datasets/raw/tunnel-cut.dvc").read_text())["outs"][0]["path"] == "tunnel-cut"
+    aside = list((project / ".dvc/tmp").glob("rwlock.cut-*"))
+    assert len(aside) == 1 and aside[0].read_text() == ""  # kept, not deleted
+    assert tree_hash(root) == before
+    st = subprocess.run([sys.executable, "-m", "dvc", "status", "--json"], cwd=project, capture_output=True, text=True)
+    assert st.returncode == 0 and st.stdout.strip() in ("{}", ""), st.stdout + st.stderr
+
+
+def test_add_refuses_a_dvc_file_that_is_not_its_own(project, capsys):
+    root = write_campaign(project / "datasets/raw/tunnel-x", [RunPlan("r1")])
+    dvc_file = project / "datasets/raw/tunnel-x.dvc"
+    dvc_file.write_text("outs:\n- md5: abc\n  si")
+    assert main(["campaign", "add", str(root)]) == 2
+    err = capsys.readouterr().err
+    assert "tunnel-x.dvc" in err and "not valid YAML" in err
+    dvc_file.write_text("outs:\n- path: other\n")
+    assert main(["campaign", "add", str(root)]) == 2
+    assert "does not track the folder tunnel-x" in capsys.readouterr().err
+    assert load_registry(project)["tunnel"] == ["demo-tunnel"]  # refused before registering
+    assert dvc_file.read_text() == "outs:\n- path: other\n"

@@ -105,11 +105,11 @@ def run_add(args) -> int:
     if folder.parent != raw:
         raise ContractError(f"campaign folder must sit in {raw}", path=args.campaign,
                             hint=f"copy it to datasets/raw/{camp.id} and add that")
+    track = registry.tracking(root, folder)  # before registering: a .dvc file it refuses changes nothing
     before = registry.load_registry(root)
     added = registry.register(root, camp)
     info(f"registered {camp.id} in {registry.REGISTRY}" if added
          else f"{camp.id} was already registered in {registry.REGISTRY}")
-    track = registry.tracking(root, folder)
     if track.kind == "stage":
         info(f"not running dvc add: {folder.name} is the {track.detail} (DVC already tracks it)")
     elif track.kind == "added":
@@ -117,6 +117,8 @@ def run_add(args) -> int:
     elif args.no_dvc:
         info("not tracked by DVC (--no-dvc)")
     else:
+        if track.detail:
+            info(f"running dvc add again: {track.detail}")
         try:
             registry.dvc_add(root, folder)
         except Exception:

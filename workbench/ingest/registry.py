@@ -119,9 +119,77 @@ def tracking(root: Path, folder: Path) -> Tracking:
         regex = "^" + re.sub(r"\\\$\\\{[^}]*\\\}", "[^/]+", re.escape(pat.rstrip("/"))) + "(/.*)?$"
         if re.match(regex, rel):
             return Tracking("stage", f"output of stage '{stage}'")
-    if (folder.parent / f"{folder.name}.dvc").is_file():
+    dvc_file = folder.parent / f"{folder.name}.dvc"
+    if dvc_file.is_file():
+        if _cut_dvc_file(dvc_file, folder.name):
+            return Tracking("untracked", f"{rel}.dvc is empty: a `dvc add` was cut before it wrote it")
         return Tracking("added", f"{rel}.dvc")
     return Tracking("untracked")
+
+
+def _cut_dvc_file(dvc_file: Path, name: str) -> bool:
+    """True when ``dvc_file`` is empty: a `dvc add` was cut before it wrote it.
+
+    DVC opens a .dvc file for writing, then writes it, so a process killed in between leaves it empty,
+    and `dvc add` rewrites an empty one. Anything else that does not name the folder is not ours to
+    overwrite: a clear error.
+    """
+    import yaml
+
+    text = dvc_file.read_text(encoding="utf-8", errors="replace")
+    if not text.strip():
+        return True
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ContractError(f"not valid YAML ({str(exc).splitlines()[0]})", path=dvc_file,
+                            hint="a `dvc add` may have been cut while writing it: check it, delete it and "
+                                 "run `workbench campaign add` again") from None
+    outs = doc.get("outs") if isinstance(doc, dict) else None
+    paths = [o.get("path") for o in outs or [] if isinstance(o, dict)]
+    if name not in paths:
+        raise ContractError(f"does not track the folder {name} (outs: {paths})", path=dvc_file,
+                            hint="move that .dvc file aside or run `dvc add` yourself")
+    return False
+
+
+def recover_dvc_rwlock(root: Path) -> Path | None:
+    """Set aside DVC's lock record ``.dvc/tmp/rwlock`` when a killed DVC process left it cut.
+
+    DVC rewrites that small JSON file in place (open for writing, then write) under its own guard
+    ``rwlock.lock``; a DVC process killed in between leaves it empty, and every later DVC command that
+    locks stages then fails with "Unable to read RWLock-file ... JSON structure is corrupted". Under the
+    same guard, a file that still does not parse is renamed to ``rwlock.cut-<UTC time>`` beside it (kept,
+    not deleted); DVC starts a fresh record. Returns the new name, or None when there was nothing to do.
+    """
+    import json
+    import time
+
+    tmp = root / ".dvc" / "tmp"
+    path = tmp / "rwlock"
+
+    def cut() -> bool:
+        try:
+            json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return False
+        except (ValueError, UnicodeDecodeError):
+            return True
+        return False
+
+    if not cut():
+        return None
+    from dvc.lock import make_lock
+
+    with make_lock(str(tmp / "rwlock.lock"), tmp_dir=str(tmp), wait=True):
+        if not cut():
+            return None
+        aside = tmp / f"rwlock.cut-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}"
+        path.replace(aside)
+    from workbench.console import info
+
+    info(f"warning: {path}: DVC's lock record was cut by a killed DVC process; set aside as {aside.name}")
+    return aside
 
 
 def dvc_add(root: Path, folder: Path) -> str:
@@ -129,6 +197,7 @@ def dvc_add(root: Path, folder: Path) -> str:
     if not (root / ".dvc").is_dir():
         raise StageError("not a DVC repository", path=root, hint="run `git init && dvc init` in the project first")
     rel = folder.resolve().relative_to(root.resolve()).as_posix()
+    recover_dvc_rwlock(root)
     proc = subprocess.run([sys.executable, "-m", "dvc", "add", rel], cwd=root, capture_output=True, text=True)
     if proc.returncode != 0:
         lines = [ln for ln in (proc.stderr + proc.stdout).splitlines() if ln.strip()]
