@@ -289,3 +289,51 @@ def test_reference_noise_is_measured_at_rest_and_shrunk_out_of_the_learned_wavef
     # a weak harmonic is shrunk towards zero, never amplified
     amp = 2 * np.abs(np.mean(shrunk[:, 1] * np.sin(2 * np.pi * 9 * f * t)))
     assert amp < 0.3 * sigma * 1.2
+
+
+def test_a_mode_filters_the_design_part_by_part_as_it_would_whole():
+    """With a mode claimed the design is filtered one part at a time and cached per value (the base, each
+    force effect's terms); a search moving a force effect's value, then the mode's, must get the design that
+    filtering the unfiltered design whole gives, and fits the same block sums as comparing it afresh."""
+    from types import SimpleNamespace
+
+    from workbench.diagnose.chain import Active, Configuration, build_design, compare_filter
+
+    t = np.arange(0, 6, 1 / 65)
+    th, tk, wh, wk, ah, ak = JointSinusoid(-10.0, -100.0, 80.0, -40.0, 0.5, 2.0, 0.0).evaluate(t)
+    motion = LegMotion.from_arrays(1 / 65, th, tk, wh, wk, np.full_like(th, 0.2), ah, ak)
+    batch = SimpleNamespace(motion=motion, dt_s=1 / 65,
+                            time_s=np.broadcast_to(np.arange(motion.shape[1]) / 65, motion.shape))
+    lib = {e.name: e for e in default_library()}
+    model = EmpiricalFormula()
+    cache: dict = {}
+    steps = [(0.5, 4.5), (1.5, 4.5), (4.0, 4.5), (1.5, 4.5), (1.5, 3.0), (1.5, 6.0)]
+    for tau, f_n in steps:
+        force = [Active(lib["added_mass_error"], {}), Active(lib["circulatory_lag"], {"tau_chords": tau}),
+                 Active(lib["link_inertia"], {})]
+        nl = {"f_n_hz": f_n, "zeta": 0.08}
+        config = Configuration([*force, Active(lib["structural_resonance"], nl)])
+        d = build_design(model, batch, config, cache=cache)
+        plain = build_design(model, batch, Configuration(force))  # unfiltered, no cache
+        whole = lib["structural_resonance"].filter_wrench(np.stack([plain.base, *plain.cols]), 1 / 65, nl)
+        assert d.names == plain.names
+        scale = np.abs(whole).max()
+        np.testing.assert_allclose(d.base, whole[0], atol=1e-9 * scale)
+        for c, w in zip(d.cols, whole[1:], strict=True):
+            np.testing.assert_allclose(c, w, atol=1e-9 * np.abs(w).max())
+        compare = compare_filter(config, 1 / 65)
+        assert set(d.compared) == set(d.names)
+        for n, c in zip(d.names, d.cols, strict=True):
+            np.testing.assert_allclose(d.compared[n], compare(c), atol=1e-9 * np.abs(c).max())
+    # the block sums through the cached compared columns equal those compared afresh
+    d.compare = compare
+    rng = np.random.default_rng(0)
+    rs = SimpleNamespace(shape=d.base.shape[:2], y=d.base + rng.normal(size=d.base.shape), heldout=False)
+    ticks = np.arange(d.base.shape[1])[None, :]
+    blocks = SimpleNamespace(ticks=ticks, run=np.array([0]), order=np.zeros(1, int))
+    cached = lsq.accumulate(d, rs, blocks)
+    d.compared = {}
+    fresh = lsq.accumulate(d, rs, blocks)
+    for c in range(6):
+        np.testing.assert_allclose(cached.G[c], fresh.G[c], rtol=1e-12, atol=1e-12 * np.abs(fresh.G[c]).max())
+        np.testing.assert_allclose(cached.b[c], fresh.b[c], rtol=1e-12, atol=1e-12 * np.abs(fresh.b[c]).max())

@@ -102,6 +102,10 @@ class Design:
 
     #: the filter residuals are compared through in fits (an equation-error filter effect, :func:`compare_filter`)
     compare: Callable[[np.ndarray], np.ndarray] | None = None
+    #: shared and per-run columns already passed through ``compare`` (by qualified name), made once per
+    #: force term and filter value (:func:`_filtered`); the fits compare the others themselves
+    compared: dict[str, np.ndarray] = field(default_factory=dict)
+    compared_local: dict[str, np.ndarray] = field(default_factory=dict)
 
     def predict(self, coefs: dict[str, float], local: dict[str, np.ndarray] | None = None) -> np.ndarray:
         """Return base + sum coef * col (+ per-run columns with per-row coefficients ``local[name]`` (B,)).
@@ -241,12 +245,20 @@ def _evict(cache: dict, recent: list, plain_key: tuple) -> None:
             break
         old = next((k for k in spare if k and k[0] == ("~lagged-output",)), spare[0])
         recent.remove(old)
-        for k in [k for k in cache if k[0] in ("ctx", "term", "base", "offset") and k[1] == old]:
+        for k in [k for k in cache if k[0] in ("ctx", "term", "base", "base0", "base0s", "offset", "filtered")
+                  and k[1] == old]:
             del cache[k]
 
 
 def _base(ctx: Context, rs, inputs: list[Active], in_key: tuple, cache: dict, lp) -> np.ndarray:
     """The model's low-passed wrench on the transformed motion, plus a known offset (``--reference``)."""
+    return _base0(ctx, rs, inputs, in_key, cache, lp).copy()
+
+
+def _base0(ctx: Context, rs, inputs: list[Active], in_key: tuple, cache: dict, lp) -> np.ndarray:
+    """:func:`_base`, cached (not a copy: do not change it)."""
+    if ("base0", in_key) in cache:
+        return cache[("base0", in_key)]
     if ("base", in_key) not in cache:
         cache[("base", in_key)] = lp(ctx.base)
     base = cache[("base", in_key)].copy()
@@ -262,6 +274,7 @@ def _base(ctx: Context, rs, inputs: list[Active], in_key: tuple, cache: dict, lp
                 o = a.effect.on_output(o, ctx.dt_s, a.nl)
             cache[okey] = o
         base += cache[okey]
+    cache[("base0", in_key)] = base
     return base
 
 
@@ -273,10 +286,11 @@ def _force_terms(a: Active, ctx: Context, in_key: tuple, cache: dict, lp) -> tup
         for k in olds[:-1]:
             del cache[k]
         t = a.effect.force_terms(ctx, a.nl)
-        stack = [x for x in (t.fixed, *t.cols, *t.local) if x is not None]
-        stack = list(lp(np.stack(stack))) if stack else []
+        parts = [x for x in (t.fixed, *t.cols, *t.local) if x is not None]
+        whole = lp(np.stack(parts)) if parts else None
+        stack = list(whole) if parts else []
         fixed = stack.pop(0) if t.fixed is not None else None
-        cache[tkey] = (t.names, stack[:len(t.cols)], t.support, fixed, t.local_names, stack[len(t.cols):])
+        cache[tkey] = (t.names, stack[:len(t.cols)], t.support, fixed, t.local_names, stack[len(t.cols):], whole)
     return cache[tkey]
 
 
@@ -308,16 +322,21 @@ def build_design(model, rs, config: Configuration, coefs: dict[str, float] | Non
     def lp(x: np.ndarray) -> np.ndarray:
         return lowpass(x, ctx.dt_s, axis=-2) if lowpass is not None else x
 
-    base = _base(ctx, rs, inputs, in_key, cache, lp)
-    base, names, cols, sup, lnames, lcols = _force_stage(config, ctx, in_key, cache, lp, only, base)
+    compared: dict[str, np.ndarray] = {}
+    compared_local: dict[str, np.ndarray] = {}
     if config.stage("filter"):
-        base, cols, lcols = _filter_stage(config, ctx, in_key, cache, only, base, cols, lcols)
+        base, names, cols, sup, lnames, lcols = _filter_stage(config, ctx, rs, inputs, in_key, cache, lp, only,
+                                                              compared, compared_local)
+    else:
+        base = _base(ctx, rs, inputs, in_key, cache, lp)
+        base, names, cols, sup, lnames, lcols = _force_stage(config, ctx, in_key, cache, lp, only, base)
     prediction = base.copy()
     for n, c in zip(names, cols, strict=False):
         v = coefs.get(n, 0.0)
         if v:
             prediction += v * c
-    d = Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols)
+    d = Design(base=base, names=names, cols=cols, support=sup, local_names=lnames, local=lcols,
+               compared=compared, compared_local=compared_local)
     ctx.coefs = coefs  # the current coefficients, for a sensor effect's known part (Terms.fit_offset)
     ctx.compare = compare_filter(config, ctx.dt_s)  # what the fits compare residuals through (None: as read)
     for a in config.stage("sensor"):
@@ -333,7 +352,7 @@ def _force_stage(config: Configuration, ctx: Context, in_key: tuple, cache: dict
     """
     names, cols, sup, lnames, lcols = [], [], [], [], []
     for a in config.stage("force"):
-        t_names, t_cols, t_sup, fixed, t_lnames, t_local = _force_terms(a, ctx, in_key, cache, lp)
+        t_names, t_cols, t_sup, fixed, t_lnames, t_local, _ = _force_terms(a, ctx, in_key, cache, lp)
         if fixed is not None:
             base += fixed
         for n, c, sp in zip(t_names, t_cols, t_sup, strict=False):
@@ -346,19 +365,70 @@ def _force_stage(config: Configuration, ctx: Context, in_key: tuple, cache: dict
     return base, names, cols, sup, lnames, lcols
 
 
-def _filter_stage(config: Configuration, ctx: Context, in_key: tuple, cache: dict, only: set[str] | None,
-                  base: np.ndarray, cols: list, lcols: list) -> tuple[np.ndarray, list, list]:
-    """Base, shared and per-run columns passed through the filter effects (as one stack, cached per force stage)."""
-    # the same stack object for the same force stage: a mode search reuses its interpolation
-    skey = ("stack", in_key, _key(config.stage("force")), None if only is None else tuple(sorted(only)))
-    if skey not in cache:
-        for k in [k for k in cache if k[0] == "stack"]:
+def _filter_stage(config: Configuration, ctx: Context, rs, inputs: list[Active], in_key: tuple, cache: dict, lp,
+                  only: set[str] | None, compared: dict, compared_local: dict) -> tuple:
+    """:func:`_force_stage` through the filter effects, one part at a time.
+
+    The filter stage is linear and works per column, so the base and each force effect's terms
+    are filtered apart (and, in equation-error form, passed back through the fits' compare
+    filter: ``compared``, ``compared_local``, filled in place) and cached per value: a search
+    over a force effect with a mode claimed filters the candidate's terms only, not the whole
+    design at every evaluation. Returns what :func:`_force_stage` returns.
+    """
+    base0 = _base0(ctx, rs, inputs, in_key, cache, lp)
+    if ("base0s", in_key) not in cache:  # one array object per input configuration: a mode's interpolation reuses it
+        cache[("base0s", in_key)] = base0[None]
+    fbase, _ = _filtered(config, ctx, in_key, ("~base",), cache[("base0s", in_key)], cache, compare=False)
+    base = fbase[0].copy()
+    names, cols, sup, lnames, lcols = [], [], [], [], []
+    for a in config.stage("force"):
+        t_names, _, t_sup, fixed, t_lnames, _, whole = _force_terms(a, ctx, in_key, cache, lp)
+        if whole is None:
+            continue
+        out, back = _filtered(config, ctx, in_key, (a.name, _key([a])[0][1]), whole, cache)
+        k = 0
+        if fixed is not None:
+            base += out[0]
+            k = 1
+        for n, sp in zip(t_names, t_sup, strict=False):
+            q = f"{a.name}.{n}"
+            if _keep(q, only):
+                names.append(q)
+                cols.append(out[k])
+                sup.append(np.asarray(sp, bool))
+                if back is not None:
+                    compared[q] = back[k]
+            k += 1
+        for n in t_lnames:
+            q = f"{a.name}.{n}"
+            lnames.append(q)
+            lcols.append(out[k])
+            if back is not None:
+                compared_local[q] = back[k]
+            k += 1
+    return base, names, cols, sup, lnames, lcols
+
+
+def _filtered(config: Configuration, ctx: Context, in_key: tuple, part: tuple, stack: np.ndarray, cache: dict,
+              compare: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """One part's stack (n, B, T, 6) through the filter effects, and that through the fits' compare filter.
+
+    Cached per input configuration, part (the base, or a force effect at a value) and filter
+    values; the newest two values of a part are kept (a search over the part's value, or over
+    the filter's, moves on and does not come back).
+    """
+    fkey = _key(config.stage("filter"))
+    key = ("filtered", in_key, part, fkey)
+    if key not in cache:
+        olds = [k for k in cache if k[0] == "filtered" and k[1] == in_key and k[2][0] == part[0]]
+        for k in olds[:-1]:
             del cache[k]
-        cache[skey] = np.stack([base, *cols, *lcols])
-    stack = cache[skey]
-    for a in config.stage("filter"):
-        stack = a.effect.filter_wrench(stack, ctx.dt_s, a.nl)
-    return stack[0], list(stack[1:1 + len(cols)]), list(stack[1 + len(cols):])
+        out = stack
+        for a in config.stage("filter"):
+            out = a.effect.filter_wrench(out, ctx.dt_s, a.nl)
+        cmp = compare_filter(config, ctx.dt_s) if compare else None
+        cache[key] = (out, None if cmp is None else cmp(out))
+    return cache[key]
 
 
 def _add_sensor_terms(d: Design, a: Active, t, only: set[str] | None) -> None:

@@ -74,7 +74,8 @@ def accumulate(design, rs, blocks, shared_names: list[str] | None = None) -> Gra
     wmask = (~pad).astype(float)[..., None]
     r = resid[idx] * wmask                     # (nb, L, 6)
     yy = np.einsum("nlc,nlc->nc", r, r)
-    local = design.local if compare is None or not design.local else list(compare(np.stack(design.local)))
+    local = design.local if compare is None or not design.local else _compared(
+        design.local, design.local_names, getattr(design, "compared_local", {}), compare)
     loc = [c.reshape(b_ * t_, 6)[idx] * wmask for c in local]  # each (nb, L, 6)
     # every shared column gathered once for all channels (a gather per channel and column costs
     # six times as much), as (nb, L, 6, k)
@@ -83,7 +84,7 @@ def accumulate(design, rs, blocks, shared_names: list[str] | None = None) -> Gra
         # gather the analysis ticks first (a strided subset), then stack the smaller arrays
         src = [design.cols[pos[names[i]]] for i in used]
         if compare is not None:
-            src = list(compare(np.stack(src)))
+            src = _compared(src, [names[i] for i in used], getattr(design, "compared", {}), compare)
         gathered = np.stack([c.reshape(b_ * t_, 6)[idx] for c in src], axis=-1)
         gathered *= wmask[..., None]
     col_of = {i: j for j, i in enumerate(used)}
@@ -105,6 +106,16 @@ def accumulate(design, rs, blocks, shared_names: list[str] | None = None) -> Gra
         chan_cols.append(np.array(cols, int))
     return Grams(list(names), chan_cols, G, bvec, yy, (~pad).sum(axis=1), blocks.run, blocks.order,
                  np.full(len(ticks), rs.heldout), list(design.local_names))
+
+
+def _compared(cols: list[np.ndarray], names: list[str], done: dict[str, np.ndarray], compare) -> list[np.ndarray]:
+    """``cols`` through ``compare``, taking those the design has already compared (``done``, by name)."""
+    todo = [i for i, n in enumerate(names) if n not in done]
+    out = [done.get(n) for n in names]
+    if todo:
+        for i, c in zip(todo, compare(np.stack([cols[i] for i in todo])), strict=True):
+            out[i] = c
+    return out
 
 
 def concat(parts: list[Grams]) -> Grams:

@@ -20,19 +20,28 @@ def _mode_coefficients(f_n_hz: float, zeta: float, dt_s: float) -> tuple[np.ndar
 
 
 _UPSAMPLED: dict = {}
+#: bytes of interpolated arrays remembered (the design's parts, each filtered at many mode values)
+_UPSAMPLED_BYTES = 256 * 2**20
 
 
 def _upsampled(w: np.ndarray, factor: int, axis: int) -> np.ndarray:
-    """Band-limited interpolation by ``factor`` along ``axis``, remembered for the last array seen.
+    """Band-limited interpolation by ``factor`` along ``axis``, remembered for the arrays seen last.
 
-    A search over the mode's frequency filters the same cached stack many times.
+    A search over the mode's frequency filters the same cached parts of the design many times
+    (the base, each force effect's terms). Entries hold their array, so an id is not reused
+    while remembered; the oldest go first beyond ``_UPSAMPLED_BYTES``.
     """
     key = (id(w), w.shape, factor, axis)
-    hit = _UPSAMPLED.get("last")
-    if hit is not None and hit[0] == key and hit[1] is w:
-        return hit[2]
+    hit = _UPSAMPLED.pop(key, None)
+    if hit is not None and hit[0] is w:
+        _UPSAMPLED[key] = hit  # newest last
+        return hit[1]
     up = signal.resample_poly(w, factor, 1, axis=axis, padtype="line")
-    _UPSAMPLED["last"] = (key, w, up)
+    _UPSAMPLED[key] = (w, up)
+    total = sum(v[1].nbytes for v in _UPSAMPLED.values())
+    while total > _UPSAMPLED_BYTES and len(_UPSAMPLED) > 1:
+        old = next(iter(_UPSAMPLED))
+        total -= _UPSAMPLED.pop(old)[1].nbytes
     return up
 
 
