@@ -337,3 +337,27 @@ def test_a_mode_filters_the_design_part_by_part_as_it_would_whole():
     for c in range(6):
         np.testing.assert_allclose(cached.G[c], fresh.G[c], rtol=1e-12, atol=1e-12 * np.abs(fresh.G[c]).max())
         np.testing.assert_allclose(cached.b[c], fresh.b[c], rtol=1e-12, atol=1e-12 * np.abs(fresh.b[c]).max())
+
+
+def test_crosstalk_makes_the_compared_misfit_columns_from_the_compared_residual():
+    """Beside a mode the crosstalk's projection is fitted through the inverse mode; the other channels' residuals
+    times each run's flow powers are made from the compared residual (6 series) instead of comparing all 90."""
+    from types import SimpleNamespace
+
+    from workbench.diagnose.effects.crosstalk import _others
+    from workbench.diagnose.effects.resonance import inverse_mode
+
+    rng = np.random.default_rng(1)
+    resid = rng.normal(size=(4, 300, 6)).cumsum(axis=1)
+    rs = SimpleNamespace(flow=np.array([0.0, 0.1, 0.2, np.nan]))
+
+    def compare(x):
+        return inverse_mode(x, 1 / 65, 4.5, 0.05, axis=-2)
+
+    for i, (slow, fast) in enumerate(zip([compare(o) for o in _others(rs, resid, 2)], _others(rs, compare(resid), 2),
+                                         strict=True)):
+        assert slow.shape == (4, 300, 15)
+        np.testing.assert_allclose(fast, slow, atol=1e-12 * np.abs(slow).max())
+        # channel i is not among its own others; the run of unknown flow has only its zeroth power
+        np.testing.assert_allclose(fast[..., :5], compare(np.delete(resid, i, axis=-1)), atol=1e-12 * np.abs(slow).max())
+        assert not fast[3, :, 5:].any()

@@ -139,8 +139,9 @@ class LoadcellCrosstalk(Effect):
         compared = None
         compare = getattr(ctx, "compare", None)
         if others is not None and compare is not None:
-            # the fits compare residuals through ``compare`` (a mode's inverse): the projection is made there
-            compared = (compare(prediction), [compare(o) for o in others[:6]])
+            # the fits compare residuals through ``compare`` (a mode's inverse): the projection is made there;
+            # ``compare`` works along time per run and channel, so the others are made from the compared residual
+            compared = (compare(prediction), _others(ctx.rs, compare(ctx.rs.y - prediction), self.misfit_flow_degree))
         for i, j in self.pairs:
             col = np.zeros_like(prediction)
             if not nl.get("null"):
@@ -184,9 +185,13 @@ class LoadcellCrosstalk(Effect):
         y, fit = getattr(rs, "y", None), getattr(rs, "fit", None)
         if not self.misfit_guard or y is None or fit is None or getattr(rs, "heldout", True) or not fit.any():
             return None
-        resid = y - prediction
-        powers = _flow_powers(rs, resid.shape[0], self.misfit_flow_degree)[..., None]  # (d, B, 1, 1)
-        return [np.concatenate(list(np.delete(resid, i, axis=-1)[None] * powers), axis=-1) for i in range(6)] + [fit]
+        return [*_others(rs, y - prediction, self.misfit_flow_degree), fit]
+
+
+def _others(rs, resid: np.ndarray, degree: int) -> list[np.ndarray]:
+    """Per reading channel i, the residual's other channels times each run's flow powers, (B, T, 5 (degree + 1))."""
+    powers = _flow_powers(rs, resid.shape[0], degree)[..., None]  # (d, B, 1, 1)
+    return [np.concatenate(list(np.delete(resid, i, axis=-1)[None] * powers), axis=-1) for i in range(6)]
 
 
 def _flow_powers(rs, n: int, degree: int) -> np.ndarray:
