@@ -66,3 +66,41 @@ def test_not_used_beside_a_sensor_effect_or_in_output_form(problem):
     config = Configuration().with_effect(Active(library["sensor_drift"], {}))
     assert StructuralResonance().search_grams(problem, config, {}, []) is None
     assert StructuralResonance(form="output").search_grams(problem, Configuration(), {}, []) is None
+
+
+@pytest.mark.parametrize("searched, values", [
+    ("circulatory_lag", [{"tau_chords": t} for t in (0.1, 0.5, 1.5, 4.0, 12.0)]),
+    ("servo_lag", [{"tau_s": t, "dead_share": 0.5} for t in (0.005, 0.02, 0.04, 0.08)]),
+])
+def test_searches_beside_a_claimed_mode_rank_values_as_the_whole_design_does(problem, searched, values):
+    """Once a mode is claimed, another effect's search compares the reading through the inverse mode with the
+    design without the mode (``Effect.search_reading``); it must rank that effect's values as the whole design
+    through the mode and back does, with nearly its training error."""
+    from workbench.diagnose.selection_search import _beside_filters
+
+    library = {e.name: e for e in default_library(["added_mass_error", "drag_coefficient_error", searched])}
+    config = Configuration([Active(library["added_mass_error"], {}), Active(library["drag_coefficient_error"], {}),
+                            Active(StructuralResonance(), {"f_n_hz": 4.5, "zeta": 0.05})])
+    names = ["added_mass_error.delta_kg", "drag_coefficient_error.delta_c"]
+    effect = library[searched]
+    quick = _beside_filters(problem, config, {}, names, effect)
+    assert quick is not None
+    exact = np.array([_sse(problem, problem.grams(config.with_effect(Active(effect, nl)), {}, names, sets="search"))
+                      for nl in values])
+    fast = np.array([_sse(problem, quick(nl)) for nl in values])
+    assert int(np.argmin(fast)) == int(np.argmin(exact))
+    assert np.max(np.abs(fast / exact - 1)) < 0.01
+    assert np.ptp(exact) > 10 * np.max(np.abs(fast - exact))
+
+
+def test_no_stand_in_beside_a_sensor_effect_or_an_output_form_mode(problem):
+    from workbench.diagnose.selection_search import _beside_filters
+
+    library = {e.name: e for e in default_library(["sensor_drift", "circulatory_lag"])}
+    lag = library["circulatory_lag"]
+    beside_sensor = Configuration([Active(StructuralResonance(), {"f_n_hz": 4.5, "zeta": 0.05}),
+                                   Active(library["sensor_drift"], {})])
+    assert _beside_filters(problem, beside_sensor, {}, [], lag) is None
+    output_form = Configuration([Active(StructuralResonance(form="output"), {"f_n_hz": 4.5, "zeta": 0.05})])
+    assert _beside_filters(problem, output_form, {}, [], lag) is None
+    assert _beside_filters(problem, Configuration(), {}, [], lag) is None

@@ -125,16 +125,20 @@ class Problem:
         return d
 
     def grams(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
-              sets: str = "all", surrogate: bool | None = None) -> lsq.Grams:
+              sets: str = "all", surrogate: bool | None = None, shift: dict | None = None) -> lsq.Grams:
         """Block sums of ``config`` (columns restricted to ``names`` when given).
 
         ``surrogate``: input effects through :class:`~workbench.diagnose.chain.SurrogateContext`
-        when the model is expensive (None: for the search subsample only).
+        when the model is expensive (None: for the search subsample only). ``shift``: per batch
+        (by ``id``), an array added to the reading (taken off the design's base), for a search's
+        stand-in criterion (:meth:`~workbench.diagnose.effects.base.Effect.search_reading`).
         """
         parts = []
         surrogate = (sets == "search" if surrogate is None else surrogate) and getattr(self, "surrogate_search", False)
         for rs, blocks in self.sets(sets):
             d = self.design(rs, config, coefs, names, surrogate=surrogate)
+            if shift is not None:
+                d.base = d.base - shift[id(rs)]
             parts.append(lsq.accumulate(d, rs, blocks, names if names is not None else d.names))
         gr = lsq.concat(parts)
         gr.prior = self.priors(config, gr.names)

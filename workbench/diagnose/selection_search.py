@@ -34,6 +34,8 @@ def search(s: SelectionSettings, problem, config: Configuration, coefs: dict, na
     cache: dict[tuple, float] = {}
     extra = [f"{effect.name}.{n}" for n in effect.linear_names()]
     quick = effect.search_grams(problem, config, coefs, names + extra) if fast else None
+    if fast and quick is None:
+        quick = _beside_filters(problem, config, coefs, names + extra, effect)
 
     def objective(values) -> float:
         key = tuple(round(float(v), 10) for v in values)
@@ -59,6 +61,35 @@ def search(s: SelectionSettings, problem, config: Configuration, coefs: dict, na
         out = best
     profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values())}
     return effect.searched(dict(zip(pnames, out, strict=False)), problem, config, coefs, names), profile
+
+
+def _beside_filters(problem, config: Configuration, coefs: dict, names: list[str], effect: Effect):
+    """A candidate's faster criterion beside claimed filter effects that offer one (:meth:`Effect.search_reading`).
+
+    The reading mapped once per batch (through each filter's map, last filter first) is compared
+    with the design of ``config`` without its filters plus the candidate: an evaluation then
+    filters nothing (a mode claimed: the force terms through the mode and back at every new
+    value). None when ``config`` has no filter, a filter offers no map, or a sensor effect is in
+    ``config`` or searched (its columns read the prediction through the filters).
+    """
+    filters = config.stage("filter")
+    if not filters or config.stage("sensor") or effect.stage in ("filter", "sensor"):
+        return None
+    shift = {}
+    for rs, _blocks in problem.sets("search"):
+        mapped = rs.y
+        for a in reversed(filters):
+            f = a.effect.search_reading(a.nl, rs.dt_s)
+            if f is None:
+                return None
+            mapped = f(mapped)
+        shift[id(rs)] = mapped - rs.y
+    reduced = Configuration([a for a in config.actives if a.effect.stage != "filter"])
+
+    def grams(nl: dict):
+        return problem.grams(reduced.with_effect(Active(effect, nl)), coefs, names, sets="search", shift=shift)
+
+    return grams
 
 
 def _refine_locally(s: SelectionSettings, objective, params, best: list, grids: dict | None, warm: bool) -> list[float]:

@@ -288,6 +288,16 @@ class Effect:
         """
         return None
 
+    def search_reading(self, nl: dict, dt_s: float) -> Callable[[np.ndarray], np.ndarray] | None:
+        """Filter stage, once claimed: a faster criterion for the searches of other effects beside it.
+
+        A map taking the reading (..., B, T, 6) to what the design *without* this effect is compared
+        with while another effect's values are searched (screening candidates only, like
+        :meth:`search_grams`; their fits and judgements keep the whole design). None (default):
+        the search passes the whole design through the effect at every evaluation.
+        """
+        return None
+
     def refusal(self, params: dict, settings) -> str | None:
         """Why these fitted values are another effect in disguise (None when they are not).
 

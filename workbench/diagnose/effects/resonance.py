@@ -232,6 +232,19 @@ class StructuralResonance(Effect):
 
         return grams
 
+    def search_reading(self, nl: dict, dt_s: float):
+        """Equation-error form: the reading through the inverse mode (None in output-error form).
+
+        The fits compare the reading through the inverse mode with the prediction through the mode
+        and back, the prediction itself but for the mode's discretisation; another effect's search
+        beside a claimed mode then compares that reading with the design without the mode, and an
+        evaluation filters nothing.
+        """
+        if self.form != "equation":
+            return None
+        f_n, zeta = float(nl["f_n_hz"]), float(nl["zeta"])
+        return lambda y: inverse_mode(y, dt_s, f_n, zeta, axis=-2)
+
     def searched(self, nl: dict, problem, config, coefs: dict, names: list[str]) -> dict:
         """Equation-error form: the least-squares optimum compensated for the misfit inside the reading.
 
