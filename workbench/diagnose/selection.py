@@ -43,6 +43,7 @@ from workbench.diagnose.selection_records import (  # noqa: F401 - importable fr
     SelectionResult,
     SelectionSettings,
     Step,
+    record_row,
 )
 from workbench.diagnose.selection_search import around, search
 
@@ -110,17 +111,45 @@ class StepwiseSelection:
         more = (library, peaks_of, plausible, progress)
         main = self._forward(problem, library, start, peaks_of, plausible, progress)
         result = self._finish(problem, main, more)
-        for branch in main.branches[: s.lookahead_branches]:
-            if branch.forced.effect.name in result.config.names():
-                continue
-            path = self._force(problem, branch, plausible)
-            if path is None:
-                continue
-            alt = self._finish(problem, self._forward(problem, library, path, peaks_of, plausible, progress), more)
-            test, _ = judge(result.fit, alt.fit, alt.fit.grams, problem.settings.hac_lags)
-            if test["llr"] > 0 and test["p"] < s.alpha:
-                result = alt
+        paths = (self._force(problem, b, plausible) for b in main.branches[: s.lookahead_branches]
+                 if b.forced.effect.name not in result.config.names())
+        for path in paths:
+            result = self._better(problem, result, path, more)
+        if s.seeded_branches:
+            for e in library:
+                if not e.lookahead or e.name in result.config.names():
+                    continue
+                seeded = e.seed(problem)
+                if seeded is not None:
+                    result = self._better(problem, result, self._seeded(problem, start, e, *seeded, plausible), more)
         return result
+
+    def _better(self, problem, result: SelectionResult, path: "_Path | None", more: tuple) -> SelectionResult:
+        """The branch ``path`` followed to its end when its held-out fit beats ``result``'s at ``alpha``, else ``result``."""
+        if path is None:
+            return result
+        alt = self._finish(problem, self._forward(problem, more[0], path, *more[1:]), more)
+        test, _ = judge(result.fit, alt.fit, alt.fit.grams, problem.settings.hac_lags)
+        return alt if test["llr"] > 0 and test["p"] < self.settings.alpha else result
+
+    def _seeded(self, problem, start: "_Path", effect: Effect, nl: dict, why: str, plausible) -> "_Path":
+        """The path that starts with ``effect`` at the values its own evidence points to (:meth:`Effect.seed`).
+
+        The effect is held at ``nl`` for the first step (a search there would go back to the value the
+        base model's misfit biases it to) and followed after every later step like any chosen
+        look-ahead effect. Its held-out test is recorded, not required: the branch as a whole must
+        beat the greedy path, and the backward check drops the effect if it no longer earns its place.
+        """
+        path = start.copy()
+        act = Active(effect, dict(nl))
+        cfg = path.config.with_effect(act)
+        names = path.names + [f"{effect.name}.{n}" for n in effect.linear_names()]
+        c = Candidate(effect, act, cfg, names, problem.fit(cfg, path.coefs, names))
+        assess(self.settings, problem, c, path.coefs, path.current, path.config, self.settings.alpha, plausible)
+        c.note = f"branch seeded by the data: {why}" + (f" (alone: {c.note})" if c.note else "")
+        self._accept(problem, path, c, [record_row(c)], [], [])
+        path.last_nl[effect.name] = dict(nl)
+        return path
 
     def _forward(self, problem, library, path: "_Path", peaks_of, plausible, progress) -> "_Path":
         """Greedy steps from ``path`` until no candidate is accepted; look-ahead effects passed over are recorded."""

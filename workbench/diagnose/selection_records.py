@@ -55,6 +55,10 @@ class SelectionSettings:
     #: re-search a chosen look-ahead effect's searched values (a servo's delay) each time another effect comes
     #: in, and go on selecting once the final refinement has moved them (an effect the held value hid)
     follow_lookahead: bool = True
+    #: a look-ahead effect the paths did not take, but whose own evidence in the data points to values
+    #: (``Effect.seed``: a servo's delay at the runs' onsets), is also tried from the first step on; that
+    #: path wins only when its final held-out fit beats the others' (significant at ``alpha``)
+    seeded_branches: bool = True
 
 
 @dataclass

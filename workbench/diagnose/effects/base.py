@@ -298,6 +298,17 @@ class Effect:
         """
         return None
 
+    def seed(self, problem) -> tuple[dict, str] | None:
+        """Searched values the campaign's own evidence points to, apart from any fit: ``(nl, why)`` or None.
+
+        A look-ahead effect (:attr:`lookahead`) that the greedy path never takes may have been hidden
+        by force effects that took its misfit first; with a seed, the selection also follows the path
+        that starts from the effect at these values (held at step 1, then followed like any chosen
+        look-ahead effect), and keeps it only when its final held-out fit beats the greedy one's.
+        ``why``: one line for the selection record. None (default): no such evidence.
+        """
+        return None
+
     def refusal(self, params: dict, settings) -> str | None:
         """Why these fitted values are another effect in disguise (None when they are not).
 
