@@ -60,8 +60,8 @@ def isolated_state(_session_state, tmp_path_factory, monkeypatch):
 LONG_FILES = (
     "integration/test_campaign_walkthrough.py",
     "diagnose/test_diagnose_battery.py",
-    "diagnose/test_diagnose_acceptance.py",
     "diagnose/test_servo_noref.py",
+    "diagnose/test_diagnose_acceptance.py",
     "faults/test_kills_more.py",
 )
 

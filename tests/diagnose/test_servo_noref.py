@@ -46,3 +46,16 @@ def test_a_drift_beside_a_60ms_dead_time_is_named(bench):
     assert abs(named["servo_lag"].params["tau_s"] - 0.06) <= 0.2 * 0.06, named["servo_lag"].params
     rate = named["sensor_drift"].params["rate_fz_n_per_s"]
     assert abs(rate - 0.0015) <= 0.2 * 0.0015, named["sensor_drift"].params
+
+
+def test_a_40ms_dead_time_hidden_from_the_greedy_path_is_found_from_its_onsets(bench):
+    # without the onset seed the greedy path took normal_force_law (c_n90 0.30), rotating added mass
+    # (0.161 kg), link drag and a false ty-from-tx crosstalk, and the servo was never significant beside them
+    d = _diagnose(bench, battery.Case("servo_dead_40ms", lambda: [planting.servo_dead_time(0.04)],
+                                      {"servo_lag": {"tau_s": 0.04}}))
+    named = {e.name: e for e in d.effects}
+    assert "servo_lag" in named, sorted(named)
+    assert abs(named["servo_lag"].params["tau_s"] - 0.04) <= 0.2 * 0.04, named["servo_lag"].params
+    assert not {"structural_resonance", "loadcell_crosstalk", "sensor_drift"} & set(named), sorted(named)
+    # the force effects are back at the clean campaign's values (rotating added mass 0.099 kg there)
+    assert abs(named["rotating_added_mass"].params["m_a_kg"] - 0.099) <= 0.01, named["rotating_added_mass"].params

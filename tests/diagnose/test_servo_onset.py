@@ -89,3 +89,42 @@ def test_the_seed_options_are_the_effects_own(bench):
     problem = _problem(bench, _planted(bench, "dead25b", planting.servo_dead_time(0.025)))
     assert s.seed(problem) is None  # 25 ms is below this lab's 50 ms threshold
     assert np.isclose(ServoLag().seed(problem)[0]["tau_s"], 0.025, atol=0.004)
+
+
+class _LateModel:
+    """A stand-in for a learned model whose own start of force comes 30 ms late (the EF's output delayed)."""
+
+    name = "late"
+
+    def __init__(self, late_s: float = 0.03):
+        from workbench.hydro.legmodel import LegForceModel, load_leg_model
+
+        self.ef = load_leg_model("ef")
+        self.late_s = late_s
+        LegForceModel.register(type(self))
+
+    def wrench(self, motion):
+        w = self.ef.wrench(motion)
+        t = np.arange(w.shape[1]) * motion.dt_s
+        out = np.empty_like(w)
+        for b in range(w.shape[0]):
+            for c in range(w.shape[2]):
+                out[b, :, c] = np.interp(t - self.late_s, t, w[b, :, c])
+        return out
+
+
+def test_the_onsets_are_timed_against_the_ef_not_a_late_base_model(bench):
+    from workbench.diagnose.chain import Lowpass
+    from workbench.diagnose.data import prepare
+    from workbench.diagnose.effects.servo import ServoLag
+    from workbench.diagnose.problem import Problem
+    from workbench.errors import ModelError
+
+    folder = _planted(bench, "dead25-late", planting.servo_dead_time(0.025))
+    problem = Problem(prepare(bench.frame(folder)), _LateModel(), Lowpass(6.0, 4))
+    # against the base model's own (late) start of force the 25 ms look like -5 ms: no seed
+    assert ServoLag(onset_model="base").seed(problem) is None
+    nl, _ = ServoLag().seed(problem)
+    assert abs(nl["tau_s"] - 0.025) <= 0.004, nl
+    with pytest.raises(ModelError, match="onset_model"):
+        ServoLag(onset_model="lstm")
