@@ -8,11 +8,10 @@ kept is the held-out test's business (``test_servo_noref.py``, slow).
 
 from __future__ import annotations
 
-import numpy as np
-import pytest
-
 import battery  # noqa: E402  (tests/diagnose/battery.py: a broken import must fail, not skip)
+import numpy as np
 import planting  # noqa: E402
+import pytest
 
 
 @pytest.fixture(scope="module")
