@@ -127,3 +127,16 @@ def test_the_onsets_are_timed_against_the_ef_not_a_late_base_model(bench):
     assert abs(nl["tau_s"] - 0.025) <= 0.004, nl
     with pytest.raises(ModelError, match="onset_model"):
         ServoLag(onset_model="lstm")
+
+
+def test_a_mount_mode_already_claimed_explains_its_late_onset(bench):
+    """A mount mode starts the force late too (4.5 Hz: 46 ms); once the paths claimed it, it seeds nothing."""
+    from workbench.diagnose.chain import Active, Configuration
+    from workbench.diagnose.effects.resonance import StructuralResonance
+    from workbench.diagnose.effects.servo import ServoLag
+
+    problem = _problem(bench, _planted(bench, "mode45", planting.mode(4.5, 0.08)))
+    alone = ServoLag().seed(problem, Configuration())
+    assert alone is not None and alone[0]["tau_s"] >= 0.02, alone
+    claimed = Configuration([Active(StructuralResonance(), {"f_n_hz": 4.5, "zeta": 0.08})])
+    assert ServoLag().seed(problem, claimed) is None

@@ -119,7 +119,7 @@ class StepwiseSelection:
             for e in library:
                 if not e.lookahead or e.name in result.config.names():
                     continue
-                seeded = e.seed(problem)
+                seeded = e.seed(problem, result.config)
                 if seeded is not None:
                     result = self._better(problem, result, self._seeded(problem, start, e, *seeded, plausible), more)
         return result

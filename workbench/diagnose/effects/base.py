@@ -298,14 +298,15 @@ class Effect:
         """
         return None
 
-    def seed(self, problem) -> tuple[dict, str] | None:
+    def seed(self, problem, config=None) -> tuple[dict, str] | None:
         """Searched values the campaign's own evidence points to, apart from any fit: ``(nl, why)`` or None.
 
         A look-ahead effect (:attr:`lookahead`) that the greedy path never takes may have been hidden
         by force effects that took its misfit first; with a seed, the selection also follows the path
         that starts from the effect at these values (held at step 1, then followed like any chosen
         look-ahead effect), and keeps it only when its final held-out fit beats the greedy one's.
-        ``why``: one line for the selection record. None (default): no such evidence.
+        ``why``: one line for the selection record; ``config``: the configuration the paths ended with
+        (evidence it already explains is no seed). None (default): no such evidence.
         """
         return None
 

@@ -110,7 +110,7 @@ class ServoLag(Effect):
         ef = load_leg_model("ef")
         return None if type(problem.model) is type(ef) else ef
 
-    def seed(self, problem) -> tuple[dict, str] | None:
+    def seed(self, problem, config=None) -> tuple[dict, str] | None:
         """The delay between the commanded start of motion and the measured force's, from the rest-to-motion onsets.
 
         At the first tick of a run the leg starts from rest: any causal model of the force, however
@@ -119,12 +119,20 @@ class ServoLag(Effect):
         free gain and offset per run and channel, so a wrong added mass or drag does not count) is
         compared with the reading within ``onset_window_s`` of the onset. A seed when the best delay
         is at least ``onset_min_s`` and removes more than ``1 - onset_max_ratio`` of the window's
-        misfit at zero delay (on the clean rich tunnel the best shift is -2 ms and removes 27 %; planted delays 98-99 %).
-        Training runs with a rest stretch only; None without them. The onsets are compared with the
+        misfit at zero delay (on the clean rich tunnel the best shift is -2 ms and removes 27 %; planted
+        delays 98-99 %). Training runs with a rest stretch only; None without them. The onsets are compared with the
         EF's by default (``onset_model``): a learned model's own start of force may be late or early
         (the demo's FED-LSTM starts 38 ms late on the clean rich tunnel, where the EF is within 2 ms).
+        ``config``: the configuration the selection's paths ended with; its input and filter effects (a
+        mount mode also starts the force late) act on the compared prediction, so a delay they already
+        explain seeds nothing.
         """
-        found = onset_delay(problem, self.onset_window_s, model=self._onset_model(problem))
+        timing = None
+        if config is not None:  # what the paths already claimed that moves or filters the force in time
+            from workbench.diagnose.chain import Configuration
+
+            timing = Configuration(config.stage("input") + config.stage("filter"))
+        found = onset_delay(problem, self.onset_window_s, model=self._onset_model(problem), config=timing)
         if found is None:
             return None
         delay, ratio, runs = found
@@ -168,7 +176,8 @@ class ServoLag(Effect):
                          f(motion.omega_k_dps), motion.flow_speed_mps, f(ah), f(ak))
 
 
-def onset_delay(problem, window_s: float = 0.15, max_s: float = 0.2, step_s: float = 0.002, model=None):
+def onset_delay(problem, window_s: float = 0.15, max_s: float = 0.2, step_s: float = 0.002, model=None,
+                config=None):
     """Delay of the measured wrench behind the base model's around each training run's start of motion.
 
     For each trial delay d (``-0.05`` s to ``max_s``), every run with a rest stretch before its motion
@@ -176,18 +185,20 @@ def onset_delay(problem, window_s: float = 0.15, max_s: float = 0.2, step_s: flo
     prediction shifted by d, with a gain and an offset fitted (least squares), the misfit scaled by
     the channel's variance at rest. Returns ``(delay_s, ratio, runs)``: the best delay, the summed
     misfit there over that at zero delay, the runs used; None when no run has a rest stretch.
-    ``model``: whose prediction the readings are compared with (None: the problem's base model).
+    ``model``: whose prediction the readings are compared with (None: the problem's base model), under
+    ``config`` (None: alone; force-stage effects in it add nothing, their coefficients are not passed).
     """
     from workbench.diagnose.chain import Configuration, build_design
 
+    config = Configuration() if config is None else config
     grid = np.arange(-0.05, max_s + 0.5 * step_s, step_s)
     sse = np.zeros(len(grid))
     runs = 0
     for rs in problem.campaign.train_sets:
         if model is None:
-            pred = problem.design(rs, Configuration(), {}).predict({})
+            pred = problem.design(rs, config, {}).predict({})
         else:
-            pred = build_design(model, rs, Configuration(), {}, problem.lowpass, problem.geometry).predict({})
+            pred = build_design(model, rs, config, {}, problem.lowpass, problem.geometry).predict({})
         for b in range(rs.y.shape[0]):
             t, v = rs.time_s[b], rs.valid[b]
             quiet = v & (t < -window_s)
