@@ -104,6 +104,38 @@ TONE_RANGE = [
          {"flow_unsteadiness": {"tone_hz": 4.0, "tone_fraction": 0.10}}),
 ]
 
+def _calf_weight(k_nm: float):
+    """A heavy part on the calf: a static torque ``k cos(theta_h + theta_k / 2)`` about the hip (the probe's own)."""
+
+    def plant(lc, mo, run):
+        th = np.interp(lc["t_ctrl"], mo["time_s"], mo["hfe_cmd_deg"])
+        tk = np.interp(lc["t_ctrl"], mo["time_s"], mo["kfe_cmd_deg"])
+        lc["tx_nm"] = lc["tx_nm"] + k_nm * np.cos(np.radians(th + 0.5 * tk))
+
+    return plant
+
+
+#: a generalisation probe: what the battery does not plant (other channel pairs, a delay between its two,
+#: another mode, tone and vibration frequency, a torque drift, a static load of another shape). Not in the
+#: CI tests; ``benchmarks/diagnose_battery.py --cases probe`` runs them (docs/diagnose.md section 7)
+PROBE = [
+    Case("xt_fx_from_fz_4pc", lambda: [P.crosstalk("fx_n", "fz_n", 0.04)], {"loadcell_crosstalk": {"x_fx_fz": 0.04}},
+         sensor_side=True),
+    Case("xt_ty_from_fy_3pc", lambda: [P.crosstalk("ty_nm", "fy_n", 0.03)], {"loadcell_crosstalk": {"x_ty_fy": 0.03}},
+         sensor_side=True),
+    Case("servo_dead_40ms", lambda: [P.servo_dead_time(0.04)], {"servo_lag": {"tau_s": 0.04}}),
+    Case("drift_tx", lambda: [P.drift("tx_nm", 0.0003)], {"sensor_drift": {"rate_tx_nm_per_s": 0.0003}},
+         sensor_side=True),
+    Case("mode_2.5Hz", lambda: [P.mode(2.5, 0.06)], {"structural_resonance": {"f_n_hz": 2.5, "zeta": 0.06}},
+         sensor_side=True),
+    Case("tone_3Hz_8pc", lambda: [P.flow_tone(3.0, 0.08, seed=5)],
+         {"flow_unsteadiness": {"tone_hz": 3.0, "tone_fraction": 0.08}}),
+    Case("vib_6Hz_fx_tx", lambda: [P.vibration(6.0, {"fx_n": 0.012, "tx_nm": 0.0015}, seed=3)],
+         lines=[(6.0, ("fx_n", "tx_nm"))]),
+    Case("calf_weight", lambda: [_calf_weight(0.004)], {"leg_weight_buoyancy": {}},
+         family={"leg_weight_buoyancy": ("leg_weight_buoyancy", "link_weight_buoyancy", "weight_buoyancy_couple")}),
+]
+
 PAIRS = [
     ("servo_dead_60ms", "drift_fz_1.5mN_per_s"),
     ("crosstalk_fz_from_fy_3pc", "mount_mode_4.5Hz"),
@@ -113,7 +145,7 @@ PAIRS = [
 
 def case(name: str) -> Case:
     """A single case by name."""
-    return next(c for c in SINGLES + COMMAND_SERVOS + TONE_RANGE if c.name == name)
+    return next(c for c in SINGLES + COMMAND_SERVOS + TONE_RANGE + PROBE if c.name == name)
 
 
 def pair(a: str, b: str) -> Case:
