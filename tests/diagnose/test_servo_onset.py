@@ -127,6 +127,8 @@ def test_the_onsets_are_timed_against_the_ef_not_a_late_base_model(bench):
     assert abs(nl["tau_s"] - 0.025) <= 0.004, nl
     with pytest.raises(ModelError, match="onset_model"):
         ServoLag(onset_model="lstm")
+    with pytest.raises(ModelError, match="onset_min_s must be a number"):
+        ServoLag(onset_min_s="8 ms")
 
 
 def test_a_mount_mode_already_claimed_explains_its_late_onset(bench):

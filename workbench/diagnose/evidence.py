@@ -42,6 +42,7 @@ from workbench.diagnose.evidence_lines import (
     find_peaks,
     line_scan,
     peaks,
+    rest_lines,
     rest_spectrum,
     spectral_floor,
 )
@@ -83,6 +84,7 @@ __all__ = [
     "_scan_grid",
     "line_scan",
     "peaks",
+    "rest_lines",
     "analyse",
     "tone_scan",
     "flow_tone_peaks",
@@ -90,8 +92,12 @@ __all__ = [
 
 
 def analyse(runs: list[RunResidual], settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0,
-            model_force: list[np.ndarray] | None = None) -> Evidence:
-    """Evidence from run residuals (analysis ticks)."""
+            model_force: list[np.ndarray] | None = None, lowpass: tuple[float, int] | None = None) -> Evidence:
+    """Evidence from run residuals (analysis ticks; lines also from the rest stretches before the runs).
+
+    ``lowpass``: cutoff (Hz) and order of the ingest's zero-phase low-pass, which the rest-stretch
+    line scan divides out of its floor (:func:`rest_lines`; None: the readings are unfiltered).
+    """
     s = settings or EvidenceSettings()
     locked = [gait_locked(r, cutoff_hz) for r in runs]
     rest_parts = [r.resid[r.fit] - r.resid[r.fit].mean(axis=0) - lp for r, lp in zip(runs, locked, strict=False)]
@@ -102,6 +108,9 @@ def analyse(runs: list[RunResidual], settings: EvidenceSettings | None = None, c
     floor = spectral_floor(freqs, psd, s.floor_window_hz)
     lines = peaks(runs, s, cutoff_hz)
     l_ratio, l_p = locked_test(runs, freqs, psd, s, cutoff_hz, tuple(p.frequency_hz for p in lines))
+    # the rig's own lines, seen while the leg stands still (those on every run's gait harmonics included)
+    lines += [q for q in rest_lines(runs, s, lowpass)
+              if all(abs(q.frequency_hz - p.frequency_hz) > q.width_hz for p in lines)]
     inputs = {"theta_h": [r.theta_h for r in runs], "theta_k": [r.theta_k for r in runs],
               "omega_h": [r.omega_h for r in runs], "omega_k": [r.omega_k for r in runs]}
     if model_force is not None:

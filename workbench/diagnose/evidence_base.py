@@ -76,6 +76,10 @@ class Peak:
     channels: list[str]
     ratio: dict[str, float]
     p: float
+    #: found in the rest stretches before the runs (:func:`evidence_lines.rest_lines`), not in the motion
+    at_rest: bool = False
+    #: how far (Hz) another frequency may lie and still be this line (the scan's resolution)
+    width_hz: float = 0.1
 
 
 @dataclass
@@ -115,7 +119,8 @@ class Evidence:
             "gait_locked_share": {c: r(self.locked_share[c]) for c in ch},
             "gait_locked_power_ratio": {c: r(self.locked_ratio[c]) for c in ch},
             "narrowband_peaks": [{"frequency_hz": r(p.frequency_hz), "channels": p.channels,
-                                  "peak_to_floor": {k: r(v) for k, v in p.ratio.items()}} for p in self.peaks],
+                                  "peak_to_floor": {k: r(v) for k, v in p.ratio.items()},
+                                  **({"at_rest": True} if p.at_rest else {})} for p in self.peaks],
             "trend_per_s": {c: r(self.trend[c]["slope"]) for c in ch},
             "trend_t": {c: r(self.trend[c]["t"]) for c in ch},
             "mse_by_flow_speed": {k: {c: r(v[c]) for c in ch} for k, v in self.by_flow.items()},

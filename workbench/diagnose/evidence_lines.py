@@ -156,6 +156,66 @@ def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cut
     return stand_off_harmonics(found, runs, rescan)
 
 
+def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None,
+               lowpass: tuple[float, int] | None = (6.0, 4), min_rest_s: float = 0.5,
+               step_hz: float = 0.02) -> list[Peak]:
+    """Lines in the rest stretches before the runs start moving: the rig's own vibration.
+
+    A pump, a fan or a mount mode shakes the readings while the leg stands still; the stroke's
+    misfit is not there yet. So a line at rest is the rig's even where it sits on a gait harmonic
+    of every run, which the moving scan (:func:`peaks`) cannot tell from the stroke (a 6 Hz
+    vibration is the 10th to 20th harmonic of 0.3-0.6 Hz strokes). Each run's rest residual is
+    detrended, Hann-tapered and its periodogram summed over runs. A rest stretch of T seconds
+    resolves 1/T (its main lobe spans +-2/T), so the floor at each frequency is the median of
+    the spectrum outside that lobe (2/T to 2/T + 1 Hz away on either side), taken on the
+    spectrum divided by the ingest's low-pass (``lowpass``: cutoff and order of the zero-phase
+    Butterworth; None: unfiltered readings) and multiplied back: near the cutoff the filter's
+    fall would otherwise pose as a floor. Lines are scanned from 2/T to ``fmax_hz``, the floor
+    reaches 1 Hz beyond. Runs with at
+    least ``min_rest_s`` of rest; none when fewer than two have one. On the clean rich tunnel
+    (36 rest seconds) no bin stands 1.9x above the floor; a 6 Hz vibration of 8 mN stands 120x.
+    """
+    from scipy import signal as sig
+
+    from workbench.signals.filters import frequency_response_db
+
+    s = settings or EvidenceSettings()
+    parts = [(r, r.resid[r.rest]) for r in runs if r.rest.sum() * r.dt_s >= min_rest_s]
+    if len(parts) < 2:
+        return []
+    dt = parts[0][0].dt_s
+    t_rest = min(len(x) for _, x in parts) * dt
+    nfft = 1 << int(np.ceil(np.log2(max(1.0 / (dt * step_hz), max(len(x) for _, x in parts)))))
+    freqs = np.fft.rfftfreq(nfft, dt)
+    keep = (freqs >= 1.0 / t_rest) & (freqs <= min(s.fmax_hz + 1.0, 0.45 / dt))
+    f = freqs[keep]
+    total = np.zeros((len(f), 6))
+    scales = []
+    for _r, x in parts:
+        x = sig.detrend(x, axis=0)
+        taper = np.hanning(len(x) + 2)[1:-1]
+        p = np.abs(np.fft.rfft(x * taper[:, None], n=nfft, axis=0)[keep]) ** 2 / (taper ** 2).sum()
+        total += p
+        scales.append(np.median(p, axis=0))
+    sc = np.asarray(scales)
+    dof = float(np.min(2.0 * sc.sum(axis=0) ** 2 / np.maximum((sc ** 2).sum(axis=0), 1e-300)))
+    gain = (np.ones(len(f)) if lowpass is None else
+            np.maximum(10 ** (frequency_response_db(f, 1.0 / dt, lowpass[0], lowpass[1]) / 10), 1e-12))
+    white = total / gain[:, None]
+    floor = np.empty_like(total)
+    gap = 2.0 / t_rest
+    for i, fi in enumerate(f):
+        d = np.abs(f - fi)
+        side = (d >= gap) & (d <= gap + 1.0)
+        floor[i] = np.median(white[side], axis=0) * gain[i] if side.any() else total[i]
+    band = (f >= max(s.fmin_hz, gap)) & (f <= s.fmax_hz)
+    if not band.any():
+        return []
+    found = find_peaks(f[band], total[band], np.maximum(floor[band], 1e-300), dof, s)
+    return [Peak(p.frequency_hz, p.channels, p.ratio, p.p, at_rest=True, width_hz=max(0.1, 0.5 / t_rest))
+            for p in found]
+
+
 def stand_off_harmonics(found: list[Peak], runs: list[RunResidual], rescan, tol_hz: float = 0.06) -> list[Peak]:
     """The peaks of ``found`` that stand in the runs whose gait harmonics miss them.
 

@@ -150,7 +150,8 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
     problem = Problem(campaign, model, lowpass, s.fit)
     base_fit = problem.fit(Configuration(), names=[])
     res_before = run_residuals(problem, Configuration(), base_fit)
-    ev_before = analyse(res_before, s.evidence, cutoff, model_force=[r.predicted for r in res_before])
+    ev_before = analyse(res_before, s.evidence, cutoff, model_force=[r.predicted for r in res_before],
+                        lowpass=(lowpass.cutoff_hz, lowpass.order) if lowpass else None)
     probe = Probe(problem, s, cutoff, res_before, ev_before)
 
     def peaks_of(effect, config: Configuration, fit: lsq.Fit):
@@ -167,7 +168,8 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
     result, effects = _enforce_claims(problem, result, base_fit, mse_before, ev_before, s, say)
     final, config = result.fit, result.config
     res_after = run_residuals(problem, config, final)
-    ev_after = analyse(res_after, s.evidence, cutoff, model_force=[r.predicted for r in res_after])
+    ev_after = analyse(res_after, s.evidence, cutoff, model_force=[r.predicted for r in res_after],
+                        lowpass=(lowpass.cutoff_hz, lowpass.order) if lowpass else None)
     mse_after = _heldout_mse(res_after)
     claimed = {a.name: a.effect for a in config.actives}
     for e in effects:

@@ -201,13 +201,14 @@ def _unexplained(ev: Evidence, effects: list[EffectReport], claimed: dict, s: Di
     out: list[Unexplained] = []
     lines = [f for e in effects for f in claimed[e.name].explained_frequencies(e.params)]
     for p in ev.peaks:
-        if any(abs(p.frequency_hz - f) < 0.1 for f in lines):
+        if any(abs(p.frequency_hz - f) < p.width_hz for f in lines):
             continue
         best = max(p.ratio, key=p.ratio.get)
+        where = ("while the leg stands still before its runs (the rig's own: a pump, a fan, a mount)" if p.at_rest
+                 else "in runs of every gait frequency (locked to nothing the rig does)")
         out.append(Unexplained("narrowband", sorted(p.channels, key=CHANNELS.index),
                                f"a line at {p.frequency_hz:.2f} Hz stands {p.ratio[best]:.0f}x above the residual "
-                               f"floor in {best}, in runs of every gait frequency (locked to nothing the rig does), "
-                               f"and no library effect removes it.", p.frequency_hz))
+                               f"floor in {best}, {where}, and no library effect removes it.", p.frequency_hz))
     r = s.report
     # the share of the residual that repeats every stroke beyond what noise puts at the harmonics
     excess = {c: ev.locked_share[c] * max(0.0, 1 - 1 / max(ev.locked_ratio[c], 1e-9)) for c in CHANNELS}

@@ -112,12 +112,21 @@ class FlowUnsteadiness(Effect):
         carried = flow_tone_peaks(rr, self.run_gains(probe.problem, config), probe.problem.weights,
                                   probe.settings.evidence, probe.cutoff)
         out = list(carried)
-        for p in probe.peaks_of(config, fit):
-            if all(abs(p.frequency_hz - q.frequency_hz) > 0.1 for q in out):
+        # then the lines of the flowing runs' rest stretches (a tone on every run's gait harmonics is seen there)
+        for p in [*probe.peaks_of(config, fit), *self._rest_lines(probe, [r for r in rr if abs(r.flow) > 1e-9])]:
+            if all(abs(p.frequency_hz - q.frequency_hz) > max(0.1, p.width_hz) for q in out):
                 out.append(p)
         # the lines the candidates are searched around (which runs sit on a harmonic: _mask_hz)
         self._anchors = sorted({*self._anchors, *(float(p.frequency_hz) for p in out)})
         return out
+
+    @staticmethod
+    def _rest_lines(probe, runs: list) -> list:
+        """Lines of ``runs``' rest stretches (:func:`evidence.rest_lines`)."""
+        from workbench.diagnose.evidence import rest_lines
+
+        lp = probe.problem.lowpass
+        return rest_lines(runs, probe.settings.evidence, (lp.cutoff_hz, lp.order) if lp else None)
 
     def check(self, cand, probe, config, fit) -> str | None:
         """A flow-borne tone is absent at zero flow and removes most of its line (an electrical line stays)."""
@@ -126,9 +135,11 @@ class FlowUnsteadiness(Effect):
         rr = probe.residuals(config, fit)
         zero = [r for r in rr if abs(r.flow) < 1e-9]
         if len(zero) >= 2:
-            hit = [p for p in peaks(zero, s.evidence, probe.cutoff) if abs(p.frequency_hz - f0) < 0.1]
+            hit = [p for p in peaks(zero, s.evidence, probe.cutoff) + self._rest_lines(probe, zero)
+                   if abs(p.frequency_hz - f0) < p.width_hz]
             if hit:
-                return (f"the {f0:.2f} Hz line is there at zero flow too ({', '.join(hit[0].channels)}): "
+                where = " (at rest)" if hit[0].at_rest else ""
+                return (f"the {f0:.2f} Hz line is there at zero flow too{where} ({', '.join(hit[0].channels)}): "
                         "not carried by the flow")
         after = probe.run_residuals(*self._line_fit(cand, probe))
         left = [p for p in peaks(after, s.evidence, probe.cutoff) if abs(p.frequency_hz - f0) < 0.1]

@@ -176,6 +176,10 @@ class StructuralResonance(Effect):
     def hint(self, ev, params: dict) -> str:  # noqa: D102
         return ccf_clause(ev, "model_force_accel", "the second derivative of the model's force")
 
+    def explained_frequencies(self, params: dict) -> list[float]:
+        """A mount rings at its own frequency under any load (the flow's buffeting at rest included)."""
+        return [params["f_n_hz"]] if params.get("f_n_hz") is not None else []
+
     def filter_wrench(self, w: np.ndarray, dt_s: float, nl: dict) -> np.ndarray:  # noqa: D102
         return resonance_filter(w, dt_s, nl["f_n_hz"], nl["zeta"], axis=-2)
 
@@ -303,10 +307,20 @@ class StructuralResonance(Effect):
         Checked per channel in bands of ``band_hz`` up to the cutoff, on the held-out runs, where a
         band holds at least ``min_band_share`` of the channel's residual power: more than
         ``max_band_raise`` times the residual is refused.
+
+        In either form, a mode above the highest frequency examined (the ingest's cutoff or the
+        evidence's ``fmax_hz``, whichever is higher) is refused: the low-pass took its resonance out
+        of the readings, and what is left in band, ``1 - (f / f_n)^2`` and a phase, is a term in the
+        readings' second derivative and a delay, which a missing inertia and a servo's lag also make
+        (with the FED-LSTM as base, a 25 ms command lag left a "7 Hz mode" beside an 18 ms servo).
         """
+        nl = cand.active.nl
+        top = max(float(probe.cutoff), float(probe.settings.evidence.fmax_hz))
+        if float(nl.get("f_n_hz", 0.0)) > top:
+            return (f"f_n = {float(nl['f_n_hz']):.2f} Hz lies above the {top:g} Hz the readings hold: its resonance "
+                    "is filtered out, and its tail is a delay and an inertia term, not a mount mode")
         if self.form != "equation":
             return None
-        nl = cand.active.nl
         edges = np.arange(0.0, probe.cutoff + self.band_hz / 2, self.band_hz)
         before = _band_power([r for r in probe.residuals(config, fit) if r.heldout], edges, None)
         after = _band_power([r for r in probe.run_residuals(cand.config, cand.fit) if r.heldout], edges,

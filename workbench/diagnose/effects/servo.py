@@ -54,6 +54,16 @@ def dead_time(x: np.ndarray, delay_s: float, dt_s: float, axis: int = -1) -> np.
     return out
 
 
+def _number(option: str, value) -> float:
+    """``value`` as a float, or a ModelError naming the servo option."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        from workbench.errors import ModelError
+
+        raise ModelError(f"servo_lag: {option} must be a number, not {value!r}") from None
+
+
 class ServoLag(Effect):
     """Actual joint angles = the commanded angles after a dead time and a first-order lag, both joints.
 
@@ -78,23 +88,20 @@ class ServoLag(Effect):
 
     def __init__(self, shapes: str = "dead+lag", onset_window_s: float = 0.15, onset_min_s: float = 0.008,
                  onset_max_ratio: float = 0.5, onset_model: str = "ef"):
-        if shapes not in ("lag", "dead+lag"):
-            from workbench.errors import ModelError
+        for option, value, allowed in (("shapes", shapes, ("lag", "dead+lag")), ("onset_model", onset_model, ("ef", "base"))):
+            if value not in allowed:
+                from workbench.errors import ModelError
 
-            raise ModelError(f"servo_lag: shapes must be 'lag' or 'dead+lag', not {shapes!r}")
+                raise ModelError(f"servo_lag: {option} must be {' or '.join(repr(a) for a in allowed)}, not {value!r}")
         self.shapes = shapes
         self.search = (self.TAU, self.SHARE) if shapes == "dead+lag" else (self.TAU,)
         #: the onset evidence (:meth:`seed`): half-width of the window around each run's start of motion,
         #: the least delay that seeds a branch, and how much of the window's misfit the delay must remove
-        self.onset_window_s = float(onset_window_s)
-        self.onset_min_s = float(onset_min_s)
-        self.onset_max_ratio = float(onset_max_ratio)
+        self.onset_window_s, self.onset_min_s, self.onset_max_ratio = (
+            _number(k, v) for k, v in (("onset_window_s", onset_window_s), ("onset_min_s", onset_min_s),
+                                       ("onset_max_ratio", onset_max_ratio)))
         #: whose start of force the onsets are compared with: ``ef`` (the empirical formula: causal and
         #: instantaneous, so its timing is right where its magnitudes are not) or ``base`` (the diagnosed model)
-        if onset_model not in ("ef", "base"):
-            from workbench.errors import ModelError
-
-            raise ModelError(f"servo_lag: onset_model must be 'ef' or 'base', not {onset_model!r}")
         self.onset_model = onset_model
 
     def options(self) -> dict:  # noqa: D102

@@ -1,0 +1,96 @@
+"""Lines at rest (``evidence.rest_lines``): the rig's own vibration, seen while the leg stands still.
+
+A vibration whose frequency is a gait harmonic of every run (6 Hz is the 10th to 20th harmonic of
+0.3-0.6 Hz strokes) cannot be told from the stroke-locked misfit in the moving runs; in the rest
+stretch before each run the stroke is not there yet. Rich-truth campaigns (the EF's magnitudes are
+wrong there), disturbances planted by the tests' own formulas (``planting.py``).
+"""
+
+from __future__ import annotations
+
+import battery  # noqa: E402  (tests/diagnose/battery.py: a broken import must fail, not skip)
+import numpy as np
+import planting  # noqa: E402
+import pytest
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    return battery.Bench(tmp_path_factory.mktemp("rest"), n_sets=4)
+
+
+def _residuals(bench, folder, drop_rest: bool = False):
+    import polars as pl
+
+    from workbench.diagnose.chain import Configuration, Lowpass
+    from workbench.diagnose.data import prepare
+    from workbench.diagnose.problem import Problem, run_residuals
+    from workbench.hydro.legmodel import load_leg_model
+
+    frame = bench.frame(folder)
+    if drop_rest:
+        frame = frame.filter(pl.col("time_s") >= 0)
+    problem = Problem(prepare(frame), load_leg_model("ef"), Lowpass(6.0, 4))
+    return run_residuals(problem, Configuration())
+
+
+def _vibration(freq_hz: float, amp: dict[str, float], seed: int = 0):
+    """A pump's vibration at a fixed frequency, its own random phase per run (the test's formula)."""
+    rng = np.random.default_rng(seed)
+
+    def plant(lc, mo, run):
+        ph = rng.uniform(0, 2 * np.pi)
+        for c, a in amp.items():
+            lc[c] = lc[c] + a * np.sin(2 * np.pi * freq_hz * lc["t_ctrl"] + ph)
+
+    return plant
+
+
+def test_the_clean_rich_campaign_has_no_line_at_rest(bench):
+    from workbench.diagnose.evidence import rest_lines
+
+    runs = _residuals(bench, bench.new_campaign())
+    assert sum(r.rest.sum() > 0 for r in runs) >= 6
+    assert rest_lines(runs) == []
+
+
+def test_a_vibration_on_every_gait_harmonic_is_found_at_rest(bench):
+    from workbench.diagnose.evidence import analyse, peaks, rest_lines
+
+    folder = planting.copy_campaign(bench.new_campaign(), bench.root / "vib6",
+                                    [_vibration(6.0, {"fx_n": 0.012, "tx_nm": 0.0015}, seed=3)])
+    runs = _residuals(bench, folder)
+    # in motion the 6 Hz line sits on a harmonic of every run: the moving scan cannot claim it
+    assert not [p for p in peaks(runs) if abs(p.frequency_hz - 6.0) < 0.3]
+    found = [p for p in rest_lines(runs) if abs(p.frequency_hz - 6.0) < 0.1]
+    assert len(found) == 1, rest_lines(runs)
+    line = found[0]
+    assert {"fx_n", "tx_nm"} <= set(line.channels) and not {"fy_n", "fz_n"} & set(line.channels)
+    assert line.at_rest and line.ratio["tx_nm"] > 10
+    # and the evidence reports it with the lines of the motion
+    ev = analyse(runs, lowpass=(6.0, 4))
+    assert any(p.at_rest and abs(p.frequency_hz - 6.0) < 0.1 for p in ev.peaks)
+    assert any(p.get("at_rest") for p in ev.summary()["narrowband_peaks"])
+
+
+def test_without_a_rest_stretch_there_is_no_rest_line(bench):
+    from workbench.diagnose.evidence import rest_lines
+
+    folder = bench.root / "vib6"
+    if not folder.is_dir():
+        folder = planting.copy_campaign(bench.new_campaign(), folder,
+                                        [_vibration(6.0, {"fx_n": 0.012, "tx_nm": 0.0015}, seed=3)])
+    assert rest_lines(_residuals(bench, folder, drop_rest=True)) == []
+
+
+def test_a_flow_tone_is_at_rest_only_where_the_flow_runs(bench):
+    """A tone on the flow speed loads the standing leg too, but only where water flows."""
+    from workbench.diagnose.evidence import rest_lines
+
+    folder = planting.copy_campaign(bench.new_campaign(), bench.root / "tone3",
+                                    [planting.flow_tone(3.0, 0.08, seed=5)])
+    runs = _residuals(bench, folder)
+    flowing = [r for r in runs if abs(r.flow) > 1e-9]
+    still = [r for r in runs if abs(r.flow) <= 1e-9]
+    assert any(abs(p.frequency_hz - 3.0) < 0.1 for p in rest_lines(flowing)), rest_lines(flowing)
+    assert not [p for p in rest_lines(still) if abs(p.frequency_hz - 3.0) < 0.5]
