@@ -94,3 +94,13 @@ def test_a_flow_tone_is_at_rest_only_where_the_flow_runs(bench):
     still = [r for r in runs if abs(r.flow) <= 1e-9]
     assert any(abs(p.frequency_hz - 3.0) < 0.1 for p in rest_lines(flowing)), rest_lines(flowing)
     assert not [p for p in rest_lines(still) if abs(p.frequency_hz - 3.0) < 0.5]
+
+
+def test_a_tone_below_the_rest_resolution_leaves_no_line_at_its_edge(bench):
+    """A 1 s rest resolves 1 Hz: a 1 Hz tone's lobe spreads to 3 Hz, and must not pose as a 2 Hz line."""
+    from workbench.diagnose.evidence import rest_lines
+
+    folder = planting.copy_campaign(bench.new_campaign(), bench.root / "tone1",
+                                    [planting.flow_tone(1.0, 0.03, seed=1)])
+    runs = [r for r in _residuals(bench, folder) if abs(r.flow) > 1e-9]
+    assert rest_lines(runs) == []

@@ -170,8 +170,9 @@ def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None
     the spectrum outside that lobe (2/T to 2/T + 1 Hz away on either side), taken on the
     spectrum divided by the ingest's low-pass (``lowpass``: cutoff and order of the zero-phase
     Butterworth; None: unfiltered readings) and multiplied back: near the cutoff the filter's
-    fall would otherwise pose as a floor. Lines are scanned from 2/T to ``fmax_hz``, the floor
-    reaches 1 Hz beyond. Runs with at
+    fall would otherwise pose as a floor. Peaks are found from 1/T to ``fmax_hz`` (the floor
+    reaches 1 Hz beyond) and kept from 2/T up: below, a line is not resolved, and a strong one
+    there (a 1 Hz tone) spreads into the bins above, where its group's top is not. Runs with at
     least ``min_rest_s`` of rest; none when fewer than two have one. On the clean rich tunnel
     (36 rest seconds) no bin stands 1.9x above the floor; a 6 Hz vibration of 8 mN stands 120x.
     """
@@ -208,12 +209,14 @@ def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None
         d = np.abs(f - fi)
         side = (d >= gap) & (d <= gap + 1.0)
         floor[i] = np.median(white[side], axis=0) * gain[i] if side.any() else total[i]
-    band = (f >= max(s.fmin_hz, gap)) & (f <= s.fmax_hz)
+    # peaks over all resolved bins, kept from 2/T up: a strong line below (a 1 Hz tone) spreads its lobe
+    # into the lowest bins kept, and its group's top lies below them
+    band = (f >= max(s.fmin_hz, 1.0 / t_rest)) & (f <= s.fmax_hz)
     if not band.any():
         return []
     found = find_peaks(f[band], total[band], np.maximum(floor[band], 1e-300), dof, s)
     return [Peak(p.frequency_hz, p.channels, p.ratio, p.p, at_rest=True, width_hz=max(0.1, 0.5 / t_rest))
-            for p in found]
+            for p in found if p.frequency_hz >= gap]
 
 
 def stand_off_harmonics(found: list[Peak], runs: list[RunResidual], rescan, tol_hz: float = 0.06) -> list[Peak]:
