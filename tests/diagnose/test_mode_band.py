@@ -1,6 +1,6 @@
 """A mount mode above the band the readings hold is refused (``StructuralResonance.check``).
 
-The ingest's low-pass takes a 7 Hz resonance out of the readings; what is left in band is a delay
+The ingest's low-pass takes a 7 Hz, zeta 0.12 resonance out of the readings; what is left in band is a delay
 and a term in the readings' second derivative, which a servo's lag or a missing inertia also make
 (with the FED-LSTM as base, a 25 ms command lag was claimed as an 18 ms servo and a "7 Hz mode").
 Rich-truth campaign, mode planted by the tests' own formula (``planting.mode``).
@@ -47,7 +47,20 @@ def test_a_mode_above_the_readings_band_is_refused(probe):
     p, fit = probe
     eff, cand = _candidate(p.problem, 7.0, 0.12)
     why = eff.check(cand, p, Configuration(), fit)
-    assert why is not None and "above the 6.5 Hz" in why
+    assert why is not None and "above the ingest's 6 Hz cutoff" in why
+
+
+@pytest.mark.parametrize("f_n, zeta, hidden", [(7.0, 0.12, True), (9.2, 0.05, True), (6.5, 0.05, False),
+                                               (5.5, 0.25, False)])
+def test_a_mode_above_the_cutoff_must_show_its_resonance_through_the_lowpass(f_n, zeta, hidden):
+    """Peak gain 1 / (2 zeta) times the zero-phase Butterworth's gain |H|^2 at f_n, at least 2."""
+    from workbench.diagnose.chain import Lowpass
+    from workbench.diagnose.effects.resonance import StructuralResonance
+
+    lp = Lowpass(6.0, 4)
+    peak = 1 / (1 + (f_n / 6.0) ** 8) / (2 * zeta)   # the test's own arithmetic: 0.94, 0.21, 3.45, (below cutoff)
+    assert (StructuralResonance().hidden_by_lowpass(f_n, zeta, lp) is not None) == hidden, peak
+    assert StructuralResonance().hidden_by_lowpass(f_n, zeta, None) is None
 
 
 def test_the_planted_mode_in_band_passes_the_band_rule(probe):
