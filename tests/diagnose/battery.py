@@ -183,6 +183,19 @@ class Bench:
             self._frames[key] = ingest_campaign(folder, params={"workers": 1}).frame
         return self._frames[key]
 
+    def problem(self, folder: Path, model_spec: str = "ef", drop_rest: bool = False):
+        """The fitting problem of a campaign folder against a base model (optionally without its rest stretches)."""
+        import polars as pl
+
+        from workbench.diagnose.chain import Lowpass
+        from workbench.diagnose.data import prepare
+        from workbench.diagnose.problem import Problem
+
+        frame = self.frame(folder)
+        if drop_rest:
+            frame = frame.filter(pl.col("time_s") >= 0)
+        return Problem(prepare(frame), _model(model_spec), Lowpass(6.0, 4))
+
     def reference(self):
         return self.frame(rich_campaign(self.root, 1, self.n_sets))
 

@@ -9,7 +9,6 @@ wrong there), disturbances planted by the tests' own formulas (``planting.py``).
 from __future__ import annotations
 
 import battery  # noqa: E402  (tests/diagnose/battery.py: a broken import must fail, not skip)
-import numpy as np
 import planting  # noqa: E402
 import pytest
 
@@ -20,30 +19,15 @@ def bench(tmp_path_factory):
 
 
 def _residuals(bench, folder, drop_rest: bool = False):
-    import polars as pl
+    from workbench.diagnose.chain import Configuration
+    from workbench.diagnose.problem import run_residuals
 
-    from workbench.diagnose.chain import Configuration, Lowpass
-    from workbench.diagnose.data import prepare
-    from workbench.diagnose.problem import Problem, run_residuals
-    from workbench.hydro.legmodel import load_leg_model
-
-    frame = bench.frame(folder)
-    if drop_rest:
-        frame = frame.filter(pl.col("time_s") >= 0)
-    problem = Problem(prepare(frame), load_leg_model("ef"), Lowpass(6.0, 4))
-    return run_residuals(problem, Configuration())
+    return run_residuals(bench.problem(folder, drop_rest=drop_rest), Configuration())
 
 
-def _vibration(freq_hz: float, amp: dict[str, float], seed: int = 0):
-    """A pump's vibration at a fixed frequency, its own random phase per run (the test's formula)."""
-    rng = np.random.default_rng(seed)
-
-    def plant(lc, mo, run):
-        ph = rng.uniform(0, 2 * np.pi)
-        for c, a in amp.items():
-            lc[c] = lc[c] + a * np.sin(2 * np.pi * freq_hz * lc["t_ctrl"] + ph)
-
-    return plant
+def _vibration():
+    """A pump's vibration at 6 Hz in fx and tx, its own random phase per run (``planting.vibration``)."""
+    return planting.vibration(6.0, {"fx_n": 0.012, "tx_nm": 0.0015}, seed=3)
 
 
 def test_the_clean_rich_campaign_has_no_line_at_rest(bench):
@@ -58,7 +42,7 @@ def test_a_vibration_on_every_gait_harmonic_is_found_at_rest(bench):
     from workbench.diagnose.evidence import analyse, peaks, rest_lines
 
     folder = planting.copy_campaign(bench.new_campaign(), bench.root / "vib6",
-                                    [_vibration(6.0, {"fx_n": 0.012, "tx_nm": 0.0015}, seed=3)])
+                                    [_vibration()])
     runs = _residuals(bench, folder)
     # in motion the 6 Hz line sits on a harmonic of every run: the moving scan cannot claim it
     assert not [p for p in peaks(runs) if abs(p.frequency_hz - 6.0) < 0.3]
@@ -79,7 +63,7 @@ def test_without_a_rest_stretch_there_is_no_rest_line(bench):
     folder = bench.root / "vib6"
     if not folder.is_dir():
         folder = planting.copy_campaign(bench.new_campaign(), folder,
-                                        [_vibration(6.0, {"fx_n": 0.012, "tx_nm": 0.0015}, seed=3)])
+                                        [_vibration()])
     assert rest_lines(_residuals(bench, folder, drop_rest=True)) == []
 
 

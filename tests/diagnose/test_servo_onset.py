@@ -20,17 +20,7 @@ def bench(tmp_path_factory):
 
 
 def _problem(bench, folder, drop_rest: bool = False):
-    import polars as pl
-
-    from workbench.diagnose.chain import Lowpass
-    from workbench.diagnose.data import prepare
-    from workbench.diagnose.problem import Problem
-    from workbench.hydro.legmodel import load_leg_model
-
-    frame = bench.frame(folder)
-    if drop_rest:
-        frame = frame.filter(pl.col("time_s") >= 0)
-    return Problem(prepare(frame), load_leg_model("ef"), Lowpass(6.0, 4))
+    return bench.problem(folder, drop_rest=drop_rest)
 
 
 def _planted(bench, name, plant):
