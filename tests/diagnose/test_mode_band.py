@@ -27,7 +27,7 @@ def probe(tmp_path_factory):
     problem = Problem(prepare(bench.frame(folder)), load_leg_model("ef"), Lowpass(6.0, 4))
     fit = problem.fit(Configuration(), names=[])
     res = run_residuals(problem, Configuration(), fit)
-    return Probe(problem, DiagnoseSettings(), 6.0, res, analyse(res, lowpass=(6.0, 4))), fit
+    return Probe(problem, DiagnoseSettings(), 6.0, res, analyse(res, lowpass=problem.lowpass)), fit
 
 
 def _candidate(problem, f_n, zeta):

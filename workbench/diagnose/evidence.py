@@ -92,10 +92,10 @@ __all__ = [
 
 
 def analyse(runs: list[RunResidual], settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0,
-            model_force: list[np.ndarray] | None = None, lowpass: tuple[float, int] | None = None) -> Evidence:
+            model_force: list[np.ndarray] | None = None, lowpass=None) -> Evidence:
     """Evidence from run residuals (analysis ticks; lines also from the rest stretches before the runs).
 
-    ``lowpass``: cutoff (Hz) and order of the ingest's zero-phase low-pass, which the rest-stretch
+    ``lowpass``: the ingest's zero-phase low-pass (``chain.Lowpass``), which the rest-stretch
     line scan divides out of its floor (:func:`rest_lines`; None: the readings are unfiltered).
     """
     s = settings or EvidenceSettings()

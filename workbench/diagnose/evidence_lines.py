@@ -157,7 +157,7 @@ def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cut
 
 
 def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None,
-               lowpass: tuple[float, int] | None = (6.0, 4), min_rest_s: float = 0.5,
+               lowpass=None, min_rest_s: float = 0.5,
                step_hz: float = 0.02) -> list[Peak]:
     """Lines in the rest stretches before the runs start moving: the rig's own vibration.
 
@@ -168,8 +168,8 @@ def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None
     detrended, Hann-tapered and its periodogram summed over runs. A rest stretch of T seconds
     resolves 1/T (its main lobe spans +-2/T), so the floor at each frequency is the median of
     the spectrum outside that lobe (2/T to 2/T + 1 Hz away on either side), taken on the
-    spectrum divided by the ingest's low-pass (``lowpass``: cutoff and order of the zero-phase
-    Butterworth; None: unfiltered readings) and multiplied back: near the cutoff the filter's
+    spectrum divided by the ingest's low-pass (``lowpass``: the problem's ``chain.Lowpass``, its
+    cutoff and order; None: unfiltered readings) and multiplied back: near the cutoff the filter's
     fall would otherwise pose as a floor. Peaks are found from 1/T to ``fmax_hz`` (the floor
     reaches 1 Hz beyond) and kept from 2/T up: below, a line is not resolved, and a strong one
     there (a 1 Hz tone) spreads into the bins above, where its group's top is not. Runs with at
@@ -201,7 +201,7 @@ def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None
     sc = np.asarray(scales)
     dof = float(np.min(2.0 * sc.sum(axis=0) ** 2 / np.maximum((sc ** 2).sum(axis=0), 1e-300)))
     gain = (np.ones(len(f)) if lowpass is None else
-            np.maximum(10 ** (frequency_response_db(f, 1.0 / dt, lowpass[0], lowpass[1]) / 10), 1e-12))
+            np.maximum(10 ** (frequency_response_db(f, 1.0 / dt, lowpass.cutoff_hz, lowpass.order) / 10), 1e-12))
     white = total / gain[:, None]
     floor = np.empty_like(total)
     gap = 2.0 / t_rest

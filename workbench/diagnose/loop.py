@@ -151,7 +151,7 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
     base_fit = problem.fit(Configuration(), names=[])
     res_before = run_residuals(problem, Configuration(), base_fit)
     ev_before = analyse(res_before, s.evidence, cutoff, model_force=[r.predicted for r in res_before],
-                        lowpass=(lowpass.cutoff_hz, lowpass.order) if lowpass else None)
+                        lowpass=lowpass)
     probe = Probe(problem, s, cutoff, res_before, ev_before)
 
     def peaks_of(effect, config: Configuration, fit: lsq.Fit):
@@ -169,7 +169,7 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
     final, config = result.fit, result.config
     res_after = run_residuals(problem, config, final)
     ev_after = analyse(res_after, s.evidence, cutoff, model_force=[r.predicted for r in res_after],
-                        lowpass=(lowpass.cutoff_hz, lowpass.order) if lowpass else None)
+                        lowpass=lowpass)
     mse_after = _heldout_mse(res_after)
     claimed = {a.name: a.effect for a in config.actives}
     for e in effects:

@@ -125,8 +125,7 @@ class FlowUnsteadiness(Effect):
         """Lines of ``runs``' rest stretches (:func:`evidence.rest_lines`)."""
         from workbench.diagnose.evidence import rest_lines
 
-        lp = probe.problem.lowpass
-        return rest_lines(runs, probe.settings.evidence, (lp.cutoff_hz, lp.order) if lp else None)
+        return rest_lines(runs, probe.settings.evidence, probe.problem.lowpass)
 
     def check(self, cand, probe, config, fit) -> str | None:
         """A flow-borne tone is absent at zero flow and removes most of its line (an electrical line stays)."""
