@@ -41,6 +41,7 @@ from workbench.diagnose.evidence_lines import (
     _segment,
     find_peaks,
     line_scan,
+    mark_sidebands,
     peaks,
     rest_lines,
     rest_spectrum,
@@ -85,6 +86,7 @@ __all__ = [
     "line_scan",
     "peaks",
     "rest_lines",
+    "mark_sidebands",
     "analyse",
     "tone_scan",
     "flow_tone_peaks",
@@ -106,11 +108,11 @@ def analyse(runs: list[RunResidual], settings: EvidenceSettings | None = None, c
     locked_var = np.concatenate(locked).var(axis=0) if locked else np.zeros(6)
     freqs, psd, dof = rest_spectrum(runs, rest_parts, s)
     floor = spectral_floor(freqs, psd, s.floor_window_hz)
-    lines = peaks(runs, s, cutoff_hz)
+    at_rest = rest_lines(runs, s, lowpass)
+    lines = peaks(runs, s, cutoff_hz, at_rest)
     l_ratio, l_p = locked_test(runs, freqs, psd, s, cutoff_hz, tuple(p.frequency_hz for p in lines))
     # the rig's own lines, seen while the leg stands still (those on every run's gait harmonics included)
-    lines += [q for q in rest_lines(runs, s, lowpass)
-              if all(abs(q.frequency_hz - p.frequency_hz) > q.width_hz for p in lines)]
+    lines += [q for q in at_rest if all(abs(q.frequency_hz - p.frequency_hz) > q.width_hz for p in lines)]
     inputs = {"theta_h": [r.theta_h for r in runs], "theta_k": [r.theta_k for r in runs],
               "omega_h": [r.omega_h for r in runs], "omega_k": [r.omega_k for r in runs]}
     if model_force is not None:

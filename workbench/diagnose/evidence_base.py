@@ -80,6 +80,9 @@ class Peak:
     at_rest: bool = False
     #: how far (Hz) another frequency may lie and still be this line (the scan's resolution)
     width_hz: float = 0.1
+    #: the stronger line (Hz) this one is a stroke sideband of (f0 +- k gait frequency; see
+    #: :func:`evidence_lines.mark_sidebands`), or None
+    sideband_of: float | None = None
 
 
 @dataclass
@@ -120,7 +123,9 @@ class Evidence:
             "gait_locked_power_ratio": {c: r(self.locked_ratio[c]) for c in ch},
             "narrowband_peaks": [{"frequency_hz": r(p.frequency_hz), "channels": p.channels,
                                   "peak_to_floor": {k: r(v) for k, v in p.ratio.items()},
-                                  **({"at_rest": True} if p.at_rest else {})} for p in self.peaks],
+                                  **({"at_rest": True} if p.at_rest else {}),
+                                  **({"sideband_of_hz": r(p.sideband_of)} if p.sideband_of is not None else {})}
+                                 for p in self.peaks],
             "trend_per_s": {c: r(self.trend[c]["slope"]) for c in ch},
             "trend_t": {c: r(self.trend[c]["t"]) for c in ch},
             "mse_by_flow_speed": {k: {c: r(v[c]) for c in ch} for k, v in self.by_flow.items()},

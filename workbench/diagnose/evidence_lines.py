@@ -135,11 +135,14 @@ def line_scan(runs: list[RunResidual], parts: list[np.ndarray], settings: Eviden
     return freqs[band], total, dof
 
 
-def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0) -> list[Peak]:
+def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cutoff_hz: float = 6.0,
+          rest: list[Peak] = ()) -> list[Peak]:
     """Lines in the non-locked residual that are locked to nothing the rig does.
 
     A line that sits on a gait harmonic of the runs it comes from may be leakage of the
     stroke-locked misfit: each line must stand on its own in the runs whose harmonics miss it.
+    Lines that are another line's stroke sidebands are marked (:func:`mark_sidebands`; ``rest``:
+    the lines at rest, which tell the carrier).
     """
     s = settings or EvidenceSettings()
     runs = [r for r in runs if r.fit.sum() >= 16]
@@ -153,7 +156,7 @@ def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cut
         f2, sc2, dof2 = line_scan([runs[i] for i in off], [parts[i] for i in off], s)
         return find_peaks(f2, sc2, spectral_floor(f2, sc2, s.floor_window_hz), dof2, s)
 
-    return stand_off_harmonics(found, runs, rescan)
+    return mark_sidebands(stand_off_harmonics(found, runs, rescan), runs, rescan, rest)
 
 
 def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None,
@@ -234,3 +237,64 @@ def stand_off_harmonics(found: list[Peak], runs: list[RunResidual], rescan, tol_
         elif len(off) >= 2 and any(abs(q.frequency_hz - p.frequency_hz) <= tol_hz for q in rescan(off)):
             out.append(p)
     return out
+
+
+def mark_sidebands(lines: list[Peak], runs: list[RunResidual], rescan, rest=(), max_order: int = 3,
+                   tol_hz: float = 0.06) -> list[Peak]:
+    """Mark the motion scan's lines that are another line's sidebands from the stroke.
+
+    A disturbance that the stroke modulates (a flow tone loads the leg by how fast it moves through
+    the water, ``a sin(2 pi f0 t) U dF/dU`` with ``dF/dU`` changing over the stroke) puts lines at
+    ``f0 +- k f_g`` beside its own in each run of gait frequency ``f_g``. Each would be reported as
+    one more unexplained line; it is one disturbance. Carriers are taken first: a line a rest line
+    (``rest``) lies on (the nearest within the rest line's width: a sideband needs the stroke), then
+    a line with lines ``k f_g`` away on both sides, then the strongest (a sideband may stand above
+    its carrier: a flow tone's mean ``dF/dU`` over a stroke can be small beside its swing). A line
+    ``k f_g`` (k = 1 .. ``max_order``, within ``tol_hz``) from a carrier for some runs' ``f_g`` is
+    that carrier's sideband unless it stands on its own in the other runs (``rescan(off)``, the same
+    scan over the run indices ``off`` whose gait frequencies put no sideband of the carrier there, at
+    least two): a second vibration 0.4 Hz above the first is in every run, a sideband only in the
+    runs at 0.4 Hz (or 0.2, 0.133 Hz). Marked lines get ``sideband_of`` = the carrier's frequency.
+    """
+    from dataclasses import replace
+
+    if len(lines) < 2:
+        return list(lines)
+
+    def sideband_runs(d_hz: float) -> list[int]:
+        return [i for i, r in enumerate(runs)
+                if np.isfinite(r.freq) and r.freq > 0
+                and any(abs(d_hz - k * r.freq) <= tol_hz for k in range(1, max_order + 1))]
+
+    def apart(a: Peak, b: Peak) -> bool:
+        return bool(sideband_runs(abs(a.frequency_hz - b.frequency_hz)))
+
+    on_rest = {min(range(len(lines)), key=lambda i: abs(lines[i].frequency_hz - q.frequency_hz))
+               for q in rest}
+    on_rest = {i for i in on_rest if any(abs(lines[i].frequency_hz - q.frequency_hz) <= q.width_hz for q in rest)}
+
+    def rank(i: int):
+        p = lines[i]
+        below = sum(apart(p, q) for q in lines if q.frequency_hz < p.frequency_hz)
+        above = sum(apart(p, q) for q in lines if q.frequency_hz > p.frequency_hz)
+        return (i not in on_rest, -min(below, above), -max(p.ratio.values(), default=0.0))
+
+    def carrier_of(p: Peak, carriers: list[Peak]) -> Peak | None:
+        # the first carrier p lies k f_g from, unless p stands on its own in the runs that put no sideband there
+        for c in carriers:
+            on = set(sideband_runs(abs(p.frequency_hz - c.frequency_hz)))
+            off = [j for j in range(len(runs)) if j not in on]
+            if on and not (len(off) >= 2 and any(abs(q.frequency_hz - p.frequency_hz) <= tol_hz
+                                                 for q in rescan(off))):
+                return c
+        return None
+
+    carriers: list[Peak] = []
+    marked: dict[int, float] = {}
+    for i in sorted(range(len(lines)), key=rank):
+        hit = None if i in on_rest else carrier_of(lines[i], carriers)
+        if hit is None:
+            carriers.append(lines[i])
+        else:
+            marked[i] = hit.frequency_hz
+    return [replace(p, sideband_of=marked[i]) if i in marked else p for i, p in enumerate(lines)]

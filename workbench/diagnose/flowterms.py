@@ -298,6 +298,71 @@ class LegKinematics:
         return force, moment
 
 
+_LAG_BLOCK = 32  # ticks per block of the blocked recurrence in first_order_lag
+
+
+def _ramp_step(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``e = exp(-r)`` and ``g = (1 - e) / r`` (``1 - r / 2`` for a vanishing ``r``), for a step ``r``.
+
+    One exponential: ``e = 1 + expm1(-r)``, within an ulp of 1 of ``exp(-r)``. ``g`` is written
+    over ``r``.
+    """
+    big = r > 1e-9
+    e = np.negative(r)
+    np.expm1(e, out=e)
+    g = np.divide(e, r, out=r, where=big)
+    np.negative(g, out=g, where=big)
+    small = ~big
+    g[small] = 1.0 - g[small] / 2                                   # g still holds r there
+    e += 1.0
+    return e, g
+
+
+def _blocked_recurrence(p: np.ndarray, y: np.ndarray, axis: int) -> None:
+    """Solve ``x[t] = a[t] x[t-1] + b[t]`` from ``x[-1] = 0`` in place, in a blocked layout.
+
+    ``y`` holds ``b`` and ``p`` holds ``a`` (broadcastable to ``y``) with the tick within a block
+    first and the block on ``axis`` of the rest (``t = block * len(y) + j``); on return ``y``
+    holds ``x`` and ``p`` the products of ``a`` within each block. All blocks are run from zero in
+    one pass, then the blocks' end states are chained (recursively) and added back scaled by the
+    products. With ``0 <= a <= 1`` every step multiplies by factors in [0, 1] and adds, as the
+    tick-by-tick loop does: nothing can overflow, at any ``a``.
+    """
+    tmp = np.empty(y.shape[1:])
+    for j in range(1, len(y)):
+        np.multiply(p[j], y[j - 1], out=tmp)
+        y[j] += tmp
+        p[j] *= p[j - 1]
+    # x at the end of each block; block i starts from x at the end of block i - 1
+    ends = _recurrence(np.moveaxis(p[-1], axis, 0), np.moveaxis(y[-1], axis, 0))
+    ends = np.ascontiguousarray(np.moveaxis(ends[:-1], 0, axis))
+    later = (slice(None),) * axis + (slice(1, None),)
+    tmp = tmp[later]
+    for j in range(len(y)):
+        np.multiply(p[j][later], ends, out=tmp)
+        y[j][later] += tmp
+
+
+def _recurrence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``x[t] = a[t] x[t-1] + b[t]`` along axis 0 from ``x[-1] = 0`` (``a`` broadcastable to ``b``)."""
+    n, bs = len(b), _LAG_BLOCK
+    x = np.array(b, float)
+    if n < 2 * bs:
+        for k in range(1, n):
+            x[k] += a[k] * x[k - 1]
+        return x
+    nb = n // bs
+    m = nb * bs
+    perm = (1, 0, *range(2, b.ndim + 1))
+    y = np.ascontiguousarray(x[:m].reshape(nb, bs, *b.shape[1:]).transpose(perm))
+    p = np.ascontiguousarray(a[:m].reshape(nb, bs, *a.shape[1:]).transpose(perm))
+    _blocked_recurrence(p, y, 0)
+    x[:m].reshape(nb, bs, *b.shape[1:])[...] = y.transpose(perm)
+    for k in range(m, n):
+        x[k] += a[k] * x[k - 1]
+    return x
+
+
 def first_order_lag(u: np.ndarray, rate_per_s: np.ndarray | float, dt_s: float) -> np.ndarray:
     """Integrate ``dx/dt = rate (u - x)`` along axis 1 of ``u`` (B, T, ...), from ``x = u[:, 0]``.
 
@@ -311,15 +376,51 @@ def first_order_lag(u: np.ndarray, rate_per_s: np.ndarray | float, dt_s: float) 
     rate = np.asarray(rate_per_s, float)
     # the rate may carry trailing axes of u (several lags of one input in one pass)
     rate = np.broadcast_to(rate, u.shape[:max(2, rate.ndim)])
-    r = 0.5 * (rate[:, 1:] + rate[:, :-1]) * dt_s                  # (B, T-1, ...) rate * dt per step
-    e = np.exp(-r)
-    g = np.where(r > 1e-9, -np.expm1(-r) / np.maximum(r, 1e-300), 1.0 - r / 2)  # (1 - e) / r
-    shape = r.shape + (1,) * (u.ndim - r.ndim)
-    e, g = e.reshape(shape), g.reshape(shape)
     out = np.empty_like(u)
     out[:, 0] = u[:, 0]
-    for k in range(1, u.shape[1]):
-        u0, u1 = u[:, k - 1], u[:, k]
-        # exact response to a ramp from u0 to u1: x1 = u1 + e (x0 - u0) - (1 - e) / (r dt) (u1 - u0)
-        out[:, k] = u1 + e[:, k - 1] * (out[:, k - 1] - u0) - g[:, k - 1] * (u1 - u0)
+    n, bs, nr = u.shape[1] - 1, _LAG_BLOCK, rate.ndim
+    if n < 2 * bs:  # a short series: tick by tick
+        r = 0.5 * (rate[:, 1:] + rate[:, :-1]) * dt_s              # (B, T-1, ...) rate * dt per step
+        e, g = _ramp_step(r)
+        shape = r.shape + (1,) * (u.ndim - nr)
+        e, g = e.reshape(shape), g.reshape(shape)
+        for k in range(1, n + 1):
+            u0, u1 = u[:, k - 1], u[:, k]
+            # exact response to a ramp from u0 to u1: x1 = u1 + e (x0 - u0) - (1 - e) / (r dt) (u1 - u0)
+            out[:, k] = u1 + e[:, k - 1] * (out[:, k - 1] - u0) - g[:, k - 1] * (u1 - u0)
+        return out
+    # the same steps for the lag d = x - u: d1 = e d0 + g (u0 - u1) from d = 0, a linear recurrence
+    # with known coefficients, solved in blocks of ticks rather than tick by tick. Blocked layout:
+    # (tick in block, u's axes beyond rate's, block, B, rate's trailing axes), so that the
+    # coefficients broadcast over outer axes only and every operation runs over long rows. The
+    # last block is padded with steps that hold d (r = 0, u0 = u1).
+    nfull, rem = divmod(n, bs)
+    full, nb = nfull * bs, nfull + (rem > 0)
+    perm = (2, *range(nr + 1, u.ndim + 1), 1, 0, *range(3, nr + 1))
+    back = tuple(np.argsort(perm))
+
+    def parts(x):  # (B, n, ...) -> whole blocks (B, nfull, bs, ...) and the rest (B, rem, ...)
+        return x[:, :full].reshape(x.shape[0], nfull, bs, *x.shape[2:]), x[:, full:]
+
+    def blocked(trailing):  # an array in the blocked layout, and its parts as (B, n, ...)
+        x = np.empty([(u.shape[0], nb, bs, *trailing)[i] for i in perm])
+        v = x.transpose(back)
+        if rem:
+            v[:, -1, rem:] = 0.0
+        return x, (v[:, :nfull], v[:, -1, :rem])
+
+    rate = rate.reshape(rate.shape + (1,) * (u.ndim - nr))         # rate's axes as u's
+    r, rs = blocked(rate.shape[2:])
+    for r1, r0, rp in zip(parts(rate[:, 1:]), parts(rate[:, :-1]), rs, strict=True):
+        np.add(r1, r0, out=rp)
+    r *= 0.5
+    r *= dt_s                                                       # rate * dt per step
+    e, g = _ramp_step(r)
+    y, ys = blocked(u.shape[2:])
+    for u0, u1, yp in zip(parts(u[:, :-1]), parts(u[:, 1:]), ys, strict=True):
+        np.subtract(u0, u1, out=yp)
+    y *= g
+    _blocked_recurrence(e, y, u.ndim - nr)
+    for u1, yp, op in zip(parts(u[:, 1:]), ys, parts(out[:, 1:]), strict=True):
+        np.add(u1, yp, out=op)
     return out

@@ -200,15 +200,25 @@ def _unexplained(ev: Evidence, effects: list[EffectReport], claimed: dict, s: Di
     """Residual structure left after the claimed effects: lines, stroke-locked misfit, trends."""
     out: list[Unexplained] = []
     lines = [f for e in effects for f in claimed[e.name].explained_frequencies(e.params)]
+    # a stroke sideband (f0 +- k gait frequency) goes with its carrier: explained with it, reported with it
+    sidebands: dict[float, list] = {}
     for p in ev.peaks:
-        if any(abs(p.frequency_hz - f) < p.width_hz for f in lines):
+        if p.sideband_of is not None:
+            sidebands.setdefault(p.sideband_of, []).append(p)
+    for p in ev.peaks:
+        if p.sideband_of is not None or any(abs(p.frequency_hz - f) < p.width_hz for f in lines):
             continue
         best = max(p.ratio, key=p.ratio.get)
         where = ("while the leg stands still before its runs (the rig's own: a pump, a fan, a mount)" if p.at_rest
                  else "in runs of every gait frequency (locked to nothing the rig does)")
-        out.append(Unexplained("narrowband", sorted(p.channels, key=CHANNELS.index),
+        side = sorted(sidebands.get(p.frequency_hz, []), key=lambda q: q.frequency_hz)
+        also = "" if not side else (
+            "; the stroke modulates it: its sideband" + ("s at " if len(side) > 1 else " at ")
+            + ", ".join(f"{q.frequency_hz:.2f}" for q in side) + " Hz lie whole gait frequencies away")
+        chans = sorted({c for q in [p, *side] for c in q.channels}, key=CHANNELS.index)
+        out.append(Unexplained("narrowband", chans,
                                f"a line at {p.frequency_hz:.2f} Hz stands {p.ratio[best]:.0f}x above the residual "
-                               f"floor in {best}, {where}, and no library effect removes it.", p.frequency_hz))
+                               f"floor in {best}, {where}, and no library effect removes it{also}.", p.frequency_hz))
     r = s.report
     # the share of the residual that repeats every stroke beyond what noise puts at the harmonics
     excess = {c: ev.locked_share[c] * max(0.0, 1 - 1 / max(ev.locked_ratio[c], 1e-9)) for c in CHANNELS}
