@@ -239,7 +239,7 @@ def stand_off_harmonics(found: list[Peak], runs: list[RunResidual], rescan, tol_
     return out
 
 
-def mark_sidebands(lines: list[Peak], runs: list[RunResidual], rescan, rest=(), max_order: int = 3,
+def mark_sidebands(lines: list[Peak], runs: list[RunResidual], rescan, rest=(), max_order: int = 6,
                    tol_hz: float = 0.06) -> list[Peak]:
     """Mark the motion scan's lines that are another line's sidebands from the stroke.
 

@@ -214,7 +214,8 @@ def _unexplained(ev: Evidence, effects: list[EffectReport], claimed: dict, s: Di
         side = sorted(sidebands.get(p.frequency_hz, []), key=lambda q: q.frequency_hz)
         also = "" if not side else (
             "; the stroke modulates it: its sideband" + ("s at " if len(side) > 1 else " at ")
-            + ", ".join(f"{q.frequency_hz:.2f}" for q in side) + " Hz lie whole gait frequencies away")
+            + ", ".join(f"{q.frequency_hz:.2f}" for q in side)
+            + (" Hz lie whole gait frequencies away" if len(side) > 1 else " Hz lies whole gait frequencies away"))
         chans = sorted({c for q in [p, *side] for c in q.channels}, key=CHANNELS.index)
         out.append(Unexplained("narrowband", chans,
                                f"a line at {p.frequency_hz:.2f} Hz stands {p.ratio[best]:.0f}x above the residual "
