@@ -63,6 +63,8 @@ def test_a_vibration_on_every_gait_harmonic_is_found_at_rest(bench):
     ev = analyse(runs, lowpass=Lowpass(6.0, 4))
     assert any(p.at_rest and abs(p.frequency_hz - 6.0) < 0.1 for p in ev.peaks)
     assert any(p.get("at_rest") for p in ev.summary()["narrowband_peaks"])
+    # in still water too: the rig's own, not the flow's
+    assert [p.rest_seen for p in ev.peaks if abs(p.frequency_hz - 6.0) < 0.1] == ["still"]
 
 
 def test_without_a_rest_stretch_there_is_no_rest_line(bench):
@@ -84,6 +86,14 @@ def test_a_flow_tone_is_at_rest_only_where_the_flow_runs(bench):
     still = [r for r in runs if abs(r.flow) <= 1e-9]
     assert any(abs(p.frequency_hz - 3.0) < 0.1 for p in _lines(flowing)), _lines(flowing)
     assert not [p for p in _lines(still) if abs(p.frequency_hz - 3.0) < 0.5]
+    # and the evidence says so of its line: at rest only where water flows
+    from workbench.diagnose.chain import Lowpass
+    from workbench.diagnose.evidence import analyse
+
+    ev = analyse(runs, lowpass=Lowpass(6.0, 4))
+    line = [p for p in ev.peaks if abs(p.frequency_hz - 3.0) < 0.1 and p.sideband_of is None]
+    assert [p.rest_seen for p in line] == ["flow"], ev.peaks
+    assert any(q.get("seen_at_rest") == "flow" for q in ev.summary()["narrowband_peaks"])
 
 
 def test_a_tone_below_the_rest_resolution_leaves_no_line_at_its_edge(bench):

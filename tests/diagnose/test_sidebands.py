@@ -56,6 +56,8 @@ def test_a_flow_tones_stroke_sidebands_are_one_unexplained_line(bench):
     lines = _unexplained(ev)
     assert len(lines) == 1 and abs(lines[0].frequency_hz - 3.0) < 0.05, [u.evidence for u in lines]
     assert "sideband" in lines[0].evidence
+    # a tone in the flow: at rest it is there only where water flows
+    assert "only where water flows" in lines[0].evidence, lines[0].evidence
     for p in near:
         if p.sideband_of is not None:
             assert f"{p.frequency_hz:.2f}" in lines[0].evidence

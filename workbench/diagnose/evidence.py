@@ -45,6 +45,7 @@ from workbench.diagnose.evidence_lines import (
     peaks,
     rest_lines,
     rest_spectrum,
+    rest_where,
     spectral_floor,
 )
 from workbench.diagnose.evidence_locked import (
@@ -86,6 +87,7 @@ __all__ = [
     "line_scan",
     "peaks",
     "rest_lines",
+    "rest_where",
     "mark_sidebands",
     "analyse",
     "tone_scan",
@@ -113,6 +115,8 @@ def analyse(runs: list[RunResidual], settings: EvidenceSettings | None = None, c
     l_ratio, l_p = locked_test(runs, freqs, psd, s, cutoff_hz, tuple(p.frequency_hz for p in lines))
     # the rig's own lines, seen while the leg stands still (those on every run's gait harmonics included)
     lines += [q for q in at_rest if all(abs(q.frequency_hz - p.frequency_hz) > q.width_hz for p in lines)]
+    # at rest in still water too (the rig's own), or only where water flows (carried by the flow)
+    lines = rest_where(lines, runs, s, lowpass)
     inputs = {"theta_h": [r.theta_h for r in runs], "theta_k": [r.theta_k for r in runs],
               "omega_h": [r.omega_h for r in runs], "omega_k": [r.omega_k for r in runs]}
     if model_force is not None:

@@ -83,6 +83,10 @@ class Peak:
     #: the stronger line (Hz) this one is a stroke sideband of (f0 +- k gait frequency; see
     #: :func:`evidence_lines.mark_sidebands`), or None
     sideband_of: float | None = None
+    #: where the rest stretches show it (:func:`evidence_lines.rest_where`): "" not at rest, "still" at
+    #: rest in still water too (the rig's own), "flow" at rest only where water flows (carried by the
+    #: flow), "rest" at rest with no still-water rest to tell the two apart
+    rest_seen: str = ""
 
 
 @dataclass
@@ -124,7 +128,8 @@ class Evidence:
             "narrowband_peaks": [{"frequency_hz": r(p.frequency_hz), "channels": p.channels,
                                   "peak_to_floor": {k: r(v) for k, v in p.ratio.items()},
                                   **({"at_rest": True} if p.at_rest else {}),
-                                  **({"sideband_of_hz": r(p.sideband_of)} if p.sideband_of is not None else {})}
+                                  **({"sideband_of_hz": r(p.sideband_of)} if p.sideband_of is not None else {}),
+                                  **({"seen_at_rest": p.rest_seen} if p.rest_seen else {})}
                                  for p in self.peaks],
             "trend_per_s": {c: r(self.trend[c]["slope"]) for c in ch},
             "trend_t": {c: r(self.trend[c]["t"]) for c in ch},

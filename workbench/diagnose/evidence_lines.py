@@ -298,3 +298,34 @@ def mark_sidebands(lines: list[Peak], runs: list[RunResidual], rescan, rest=(), 
         else:
             marked[i] = hit.frequency_hz
     return [replace(p, sideband_of=marked[i]) if i in marked else p for i, p in enumerate(lines)]
+
+
+def rest_where(lines: list[Peak], runs: list[RunResidual], settings: EvidenceSettings | None = None,
+               lowpass=None) -> list[Peak]:
+    """Each line marked with where the rest stretches show it (``Peak.rest_seen``).
+
+    The rest stretches of the still-water runs and of the flowing runs are scanned apart
+    (:func:`rest_lines`): a line there in still water too is the rig's own (a pump, a fan, a
+    mount); one there only where water flows is carried by the flow (a pump's pulsation, vortex
+    shedding upstream). "rest": seen at rest, with fewer than two still-water rest stretches to
+    tell. A line matches a rest line within the wider of the two's widths.
+    """
+    from dataclasses import replace
+
+    s = settings or EvidenceSettings()
+    flowing = [r for r in runs if abs(r.flow) > 1e-9]
+    still = [r for r in runs if abs(r.flow) <= 1e-9]
+    at_flow = rest_lines(flowing, s, lowpass) if len(flowing) >= 2 else []
+    at_still = rest_lines(still, s, lowpass) if len(still) >= 2 else []
+    can_tell = sum(r.rest.sum() * r.dt_s >= 0.5 for r in still) >= 2
+
+    def near(p: Peak, found: list[Peak]) -> bool:
+        return any(abs(q.frequency_hz - p.frequency_hz) <= max(q.width_hz, p.width_hz) for q in found)
+
+    out = []
+    for p in lines:
+        in_flow, in_still = near(p, at_flow), near(p, at_still)
+        seen = ("still" if in_still else "flow" if in_flow and can_tell else
+                "rest" if in_flow or p.at_rest else "")
+        out.append(replace(p, rest_seen=seen) if seen else p)
+    return out

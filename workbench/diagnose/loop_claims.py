@@ -196,6 +196,21 @@ def _enforce_claims(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
         result = type(result)(config, names, fit, steps, table)
 
 
+_AT_REST = {"still": "the rig's own: a pump, a fan, a mount; it is there in still water",
+            "flow": "carried by the flow: it is there only where water flows, not in still water",
+            "rest": "the rig's own or the flow's: no still-water runs to tell"}
+
+
+def _where(p) -> str:
+    """Where a line is seen, for its unexplained sentence (motion, rest, still water or flow)."""
+    if p.at_rest:
+        return f"while the leg stands still before its runs ({_AT_REST.get(p.rest_seen, _AT_REST['rest'])})"
+    out = "in runs of every gait frequency (locked to nothing the rig does)"
+    if p.rest_seen:
+        out += f"; at rest before the runs too ({_AT_REST[p.rest_seen]})"
+    return out
+
+
 def _unexplained(ev: Evidence, effects: list[EffectReport], claimed: dict, s: DiagnoseSettings) -> list[Unexplained]:
     """Residual structure left after the claimed effects: lines, stroke-locked misfit, trends."""
     out: list[Unexplained] = []
@@ -209,8 +224,7 @@ def _unexplained(ev: Evidence, effects: list[EffectReport], claimed: dict, s: Di
         if p.sideband_of is not None or any(abs(p.frequency_hz - f) < p.width_hz for f in lines):
             continue
         best = max(p.ratio, key=p.ratio.get)
-        where = ("while the leg stands still before its runs (the rig's own: a pump, a fan, a mount)" if p.at_rest
-                 else "in runs of every gait frequency (locked to nothing the rig does)")
+        where = _where(p)
         side = sorted(sidebands.get(p.frequency_hz, []), key=lambda q: q.frequency_hz)
         also = "" if not side else (
             "; the stroke modulates it: its sideband" + ("s at " if len(side) > 1 else " at ")
