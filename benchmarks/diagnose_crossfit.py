@@ -44,10 +44,10 @@ def main() -> int:
     ap.add_argument("--root", default=str(ROOT / "build" / "bench" / "diagnose"))
     args = ap.parse_args()
 
-    import numpy as np
-
     import battery as B
+    import numpy as np
     import planting as P
+
     from workbench.diagnose import lsq
     from workbench.diagnose.chain import Active, Configuration, Lowpass
     from workbench.diagnose.data import prepare
