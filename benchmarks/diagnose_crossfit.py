@@ -21,6 +21,9 @@ is 0.01/19 = 0.00053); the clean campaign: no effect below p 0.0014 cross-fitted
 (``normal_force_law`` 0.0014, ``drag_coefficient_error`` 0.0019); 3 % fz-from-fy crosstalk planted:
 the bare entry 2.73 / 5.89, but on the clean campaign the bare entry reaches p 9e-5 cross-fitted
 (the FED-LSTM's own fz misfit follows fy), so crosstalk needs its guards in any cross-fitted test.
+Stand-ins gain too: 25 ms dead time planted, ``drag_coefficient_error`` 1.21 / 4.60 and
+``normal_force_law`` 1.82 / 5.06 (p 5e-7); 1.5 mN/s fz drift planted, ``leg_weight_buoyancy``
+0.49 / 4.03 (p 4e-5). The servo and the drift are searched or pruned, so not in this table.
 """
 
 from __future__ import annotations
