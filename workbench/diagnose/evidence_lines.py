@@ -159,8 +159,17 @@ def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cut
     return mark_sidebands(stand_off_harmonics(found, runs, rescan), runs, rescan, rest)
 
 
+#: the shortest rest stretch (s) a run's rest lines are scanned from
+MIN_REST_S = 0.5
+
+
+def _rested(runs: list[RunResidual], min_rest_s: float = MIN_REST_S) -> list[RunResidual]:
+    """The runs with at least ``min_rest_s`` of rest before they move."""
+    return [r for r in runs if r.rest.sum() * r.dt_s >= min_rest_s]
+
+
 def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None,
-               lowpass=None, min_rest_s: float = 0.5,
+               lowpass=None, min_rest_s: float = MIN_REST_S,
                step_hz: float = 0.02) -> list[Peak]:
     """Lines in the rest stretches before the runs start moving: the rig's own vibration.
 
@@ -184,7 +193,7 @@ def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None
     from workbench.signals.filters import frequency_response_db
 
     s = settings or EvidenceSettings()
-    parts = [(r, r.resid[r.rest]) for r in runs if r.rest.sum() * r.dt_s >= min_rest_s]
+    parts = [(r, r.resid[r.rest]) for r in _rested(runs, min_rest_s)]
     if len(parts) < 2:
         return []
     dt = parts[0][0].dt_s
@@ -269,9 +278,9 @@ def mark_sidebands(lines: list[Peak], runs: list[RunResidual], rescan, rest=(), 
     def apart(a: Peak, b: Peak) -> bool:
         return bool(sideband_runs(abs(a.frequency_hz - b.frequency_hz)))
 
-    on_rest = {min(range(len(lines)), key=lambda i: abs(lines[i].frequency_hz - q.frequency_hz))
-               for q in rest}
-    on_rest = {i for i in on_rest if any(abs(lines[i].frequency_hz - q.frequency_hz) <= q.width_hz for q in rest)}
+    # the motion lines nearest to a rest line, kept where a rest line lies within its width
+    nearest = {min(range(len(lines)), key=lambda i: abs(lines[i].frequency_hz - q.frequency_hz)) for q in rest}
+    on_rest = {i for i in nearest if any(abs(lines[i].frequency_hz - q.frequency_hz) <= q.width_hz for q in rest)}
 
     def rank(i: int):
         p = lines[i]
@@ -315,9 +324,8 @@ def rest_where(lines: list[Peak], runs: list[RunResidual], settings: EvidenceSet
     s = settings or EvidenceSettings()
     flowing = [r for r in runs if abs(r.flow) > 1e-9]
     still = [r for r in runs if abs(r.flow) <= 1e-9]
-    at_flow = rest_lines(flowing, s, lowpass) if len(flowing) >= 2 else []
-    at_still = rest_lines(still, s, lowpass) if len(still) >= 2 else []
-    can_tell = sum(r.rest.sum() * r.dt_s >= 0.5 for r in still) >= 2
+    at_flow, at_still = rest_lines(flowing, s, lowpass), rest_lines(still, s, lowpass)
+    can_tell = len(_rested(still)) >= 2  # rest_lines needs two rest stretches
 
     def near(p: Peak, found: list[Peak]) -> bool:
         return any(abs(q.frequency_hz - p.frequency_hz) <= max(q.width_hz, p.width_hz) for q in found)
