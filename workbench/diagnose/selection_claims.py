@@ -67,8 +67,8 @@ def pick(s: SelectionSettings, problem, cands, table, coefs, current, config, le
 def assess(s: SelectionSettings, problem, c: Candidate, coefs, current, config, level: float, plausible) -> None:
     """Judge a candidate on the held-out runs and check every claim criterion (sets ``c.ok``, ``c.note``)."""
     judged = _judged(problem, c, coefs)
-    corr = _null_correction(problem, judged, coefs, current)
-    c.test, c.gain_c = judge(current, judged.fit, judged.fit.grams, problem.settings.hac_lags, corr)
+    corr, null_sse = null_correction(problem, judged.effect, judged.config, judged.active.nl, judged.names, coefs, current)
+    c.test, c.gain_c = judge(current, judged.fit, judged.fit.grams, problem.settings.hac_lags, corr, null_sse)
     reasons = []
     if c.test["p"] >= level:
         reasons.append(f"not significant (p={c.test['p']:.2g} >= {level:.2g})")
@@ -105,17 +105,21 @@ def _judged(problem, c: Candidate, coefs) -> Candidate:
     return Candidate(c.effect, act, cfg, names, problem.fit(cfg, coefs, names))
 
 
-def _null_correction(problem, cand: Candidate, coefs, current: lsq.Fit) -> np.ndarray | None:
-    """Per block, what the same per-run fit gains at the effect's off-peak variants, ``(k, nb)`` (None: no variants)."""
-    variants = cand.effect.null_variants(cand.active.nl)
+def null_correction(problem, effect, config, nl: dict, names: list[str], coefs, current: lsq.Fit):
+    """What the same per-run fit gains at ``effect``'s off-peak variants of ``nl``, in ``config``.
+
+    Returns per block the variants' log-likelihood gain over ``current``, ``(k, nb)``, and their
+    squared error per block and channel, ``(k, nb, channels)``; ``(None, None)`` without variants.
+    """
+    variants = effect.null_variants(nl)
     if not variants:
-        return None
-    gains = []
-    for nl in variants:
-        cfg = cand.config.with_effect(Active(cand.effect, nl))
-        f = problem.fit(cfg, coefs, cand.names)
+        return None, None
+    gains, sse = [], []
+    for v in variants:
+        f = problem.fit(config.with_effect(Active(effect, v)), coefs, names)
         gains.append(block_llr(current, f, f.grams).sum(axis=1))
-    return np.array(gains)
+        sse.append(f.sse_block_c)
+    return np.array(gains), np.array(sse)
 
 
 def ambiguous(best: Candidate, cands: list[Candidate], level: float, hac: int,

@@ -22,12 +22,16 @@ def block_llr(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams) -> np.ndarray:
     return 0.5 * gr.n[:, None] * np.log(sb / sa)
 
 
-def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correction: np.ndarray | None = None):
+def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correction: np.ndarray | None = None,
+          null_sse_c: np.ndarray | None = None):
     """Held-out test of ``after`` against ``before``: t, p, llr and per-channel relative MSE reduction.
 
     ``correction``: per block, what the same per-run fit gains at off-peak variants, ``(k, nb)`` (or
     their mean, ``(nb,)``). The gain beyond their mean is tested; with ``k >= 3`` variants against
     their spread (:func:`_null_spread_test`), otherwise by the blocks' own scatter.
+    ``null_sse_c``: the variants' squared error per block and channel, ``(k, nb, channels)``. With
+    ``k >= 3`` the per-channel gain is then what ``after`` removes beyond the variants' mean
+    (:func:`_gain_beyond_nulls`), the same comparison the test makes.
     """
     raw = block_llr(before, after, gr).sum(axis=1)
     nulls = None
@@ -50,6 +54,8 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
         # floor instead blew a positive remainder up to ~1e300)
         total = float(raw[h].sum())
         gain_c = gain_c * (min(1.0, max(0.0, float(g.sum())) / total) if total > 0 else 0.0)
+    if nulls is not None and len(nulls) >= 3 and null_sse_c is not None:
+        gain_c = _gain_beyond_nulls(before, after, np.asarray(null_sse_c), gr.heldout)
     if n < 3:
         return {"t": 0.0, "p": 1.0, "llr": float(g.sum()), "n_blocks": n}, gain_c
     if nulls is not None and len(nulls) >= 3:
@@ -66,6 +72,20 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
     se = np.sqrt(max(var, 1e-300) / n / max(n - 1, 1))
     t = float(mean / se)
     return {"t": t, "p": float(stats.t.sf(t, df=max(n - 1, 1))), "llr": float(g.sum()), "n_blocks": n}, gain_c
+
+
+def _gain_beyond_nulls(before: lsq.Fit, after: lsq.Fit, null_sse_c: np.ndarray, heldout: np.ndarray) -> np.ndarray:
+    """Per channel, the share of ``before``'s held-out MSE that ``after`` removes beyond its off-peak variants' mean.
+
+    A per-run fit (a tone's phase in each run) moves the shared coefficients too; in runs where that
+    costs more than the fit gains, the variants lose as much as the fit at the proposed value, so a
+    plain held-out gain would charge the nuisance's cost to the effect. What the variants leave, less
+    what the fit leaves, is the effect's own share; never above the plain gain's ceiling of 1.
+    """
+    sb = before.sse_block_c[heldout].sum(axis=0)
+    sa = after.sse_block_c[heldout].sum(axis=0)
+    sn = null_sse_c[:, heldout].sum(axis=1).mean(axis=0)
+    return np.where(sb > 0, (sn - sa) / np.maximum(sb, 1e-300), 0.0)
 
 
 def _null_spread_test(raw: np.ndarray, nulls: np.ndarray, run: np.ndarray) -> dict:
