@@ -252,6 +252,11 @@ def test_a_per_run_tone_s_gain_is_what_it_removes_beyond_its_off_peak_fits():
     assert test["p"] < 1e-3, test
     assert plain.max() < 0.02 < share, (plain, share)
     assert abs(gain.max() - share) < 0.25 * share, (gain, share)
+    # counted over the runs that can tell the tone (here the first two), the share is of their error alone
+    telling = np.isin(gr.run, [0, 1])
+    _, told = judge(before, after, gr, 2, nulls, null_sse, telling)
+    share_told = energy / before.sse_block_c[telling, 0].sum()
+    assert share_told > 1.5 * share and abs(told.max() - share_told) < 0.25 * share_told, (told, share_told)
     # no tone: beyond its variants the fit at 2 Hz removes about nothing
     gains = []
     for seed in range(20):

@@ -26,6 +26,9 @@ class DataSettings:
     heldout_fraction: float = 0.3
     #: decimals the motion parameters are rounded to before hashing (the split key)
     split_decimals: int = 3
+    #: a motion parameter the held-out runs must cover: every value of it that two or more parameter sets
+    #: share gets a held-out set (a flow tone at a harmonic of every held-out gait cannot be tested); "": none
+    split_cover: str = ""
     #: seconds cut from both ends of the moving part of every run (filter and lag transients)
     edge_trim_s: float = 0.5
     #: also fit on the pre-run rest stretch (time_s < 0) when the processed file keeps it
@@ -105,12 +108,27 @@ def _unit_hash(key: str) -> float:
     return int.from_bytes(hashlib.sha256(key.encode()).digest()[:8], "big") / 2.0**64
 
 
-def heldout_mask(runs: list[RunMotion], fraction: float, decimals: int = 3) -> np.ndarray:
-    """Held-out runs: parameter sets whose key hashes below ``fraction`` (at least one set, never all)."""
+def heldout_mask(runs: list[RunMotion], fraction: float, decimals: int = 3, cover: str = "") -> np.ndarray:
+    """Held-out runs: parameter sets whose key hashes below ``fraction`` (at least one set, never all).
+
+    ``cover``: a motion parameter (the gait frequency) whose every value shared by two or more sets
+    gets a held-out set (the lowest hash among them) and keeps a training set. The choice depends on
+    the sets alone, so a re-measured campaign of the same sets splits the same way.
+    """
     keys = [parameter_key(dict(r.params), decimals) if r.params else r.run_id for r in runs]
     uniq = sorted(set(keys))
     h = {k: _unit_hash(k) for k in uniq}
     held = {k for k in uniq if h[k] < fraction}
+    if cover and fraction > 0:
+        groups: dict[float, list[str]] = {}
+        for k, r in zip(keys, runs, strict=True):
+            if r.params and cover in r.params and k not in groups.get(round(float(r.params[cover]), decimals), []):
+                groups.setdefault(round(float(r.params[cover]), decimals), []).append(k)
+        for members in groups.values():
+            if len(members) >= 2 and not held & set(members):
+                held.add(min(members, key=h.get))
+            if len(members) >= 2 and set(members) <= held:
+                held.discard(max(members, key=h.get))
     if len(uniq) >= 2 and fraction > 0:
         if not held:
             held = {min(uniq, key=h.get)}
@@ -238,7 +256,7 @@ def prepare(frame, settings: DataSettings | None = None, source: str = "processe
         bad = runs[int(np.argmax(np.abs(dts - dt)))].run_id
         raise DataError(f"tick interval differs between runs ({dts.min():.4g}-{dts.max():.4g} s)", path=source,
                         run=bad, hint="resample the runs onto one control tick")
-    held = heldout_mask(runs, settings.heldout_fraction, settings.split_decimals)
+    held = heldout_mask(runs, settings.heldout_fraction, settings.split_decimals, settings.split_cover)
     train_idx = [i for i in range(len(runs)) if not held[i]]
     held_idx = [i for i in range(len(runs)) if held[i]]
     if not train_idx or not held_idx:

@@ -68,7 +68,8 @@ def assess(s: SelectionSettings, problem, c: Candidate, coefs, current, config, 
     """Judge a candidate on the held-out runs and check every claim criterion (sets ``c.ok``, ``c.note``)."""
     judged = _judged(problem, c, coefs)
     corr, null_sse = null_correction(problem, judged.effect, judged.config, judged.active.nl, judged.names, coefs, current)
-    c.test, c.gain_c = judge(current, judged.fit, judged.fit.grams, problem.settings.hac_lags, corr, null_sse)
+    telling = telling_blocks(problem, judged.effect, judged.active.nl, judged.fit.grams) if null_sse is not None else None
+    c.test, c.gain_c = judge(current, judged.fit, judged.fit.grams, problem.settings.hac_lags, corr, null_sse, telling)
     reasons = []
     if c.test["p"] >= level:
         reasons.append(f"not significant (p={c.test['p']:.2g} >= {level:.2g})")
@@ -103,6 +104,18 @@ def _judged(problem, c: Candidate, coefs) -> Candidate:
     cfg = c.config.with_effect(act)
     names = c.names + [f"{c.effect.name}.{n}" for n in c.effect.judging_names(nl, c.names)]
     return Candidate(c.effect, act, cfg, names, problem.fit(cfg, coefs, names))
+
+
+def telling_blocks(problem, effect, nl: dict, grams: lsq.Grams) -> np.ndarray | None:
+    """Per block: whether its run can tell ``effect`` from the misfit (:meth:`Effect.telling_runs`; None: all)."""
+    runs = np.ones(len(problem.campaign.runs), bool)
+    told = False
+    for rs in problem.campaign.sets:
+        m = effect.telling_runs(dict(nl), rs)
+        if m is not None:
+            runs[np.asarray(rs.index)] = np.asarray(m, bool)
+            told = True
+    return runs[grams.run] if told else None
 
 
 def null_correction(problem, effect, config, nl: dict, names: list[str], coefs, current: lsq.Fit):

@@ -9,7 +9,7 @@ drops, weakest first, an effect the held-out test no longer supports once the ot
 from __future__ import annotations
 
 from workbench.diagnose.chain import Active
-from workbench.diagnose.selection_claims import null_correction
+from workbench.diagnose.selection_claims import null_correction, telling_blocks
 from workbench.diagnose.selection_judge import judge
 from workbench.diagnose.selection_records import SelectionSettings
 from workbench.diagnose.selection_search import parabola, search
@@ -92,10 +92,11 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps)
             rnames = [n for n in names if not n.startswith(a.name + ".")]
             f, after = problem.fit(rest, current.coefs(), rnames), current
             jn = a.effect.judged_as(dict(a.nl))
-            corr = null_sse = None
+            corr = null_sse = telling = None
             if jn is None and len(a.effect.null_variants(dict(a.nl))) >= 3:
                 # a per-run fit (a tone's phases): judged against its off-peak variants, as at its step
                 corr, null_sse = null_correction(problem, a.effect, config, dict(a.nl), names, current.coefs(), f)
+                telling = telling_blocks(problem, a.effect, dict(a.nl), after.grams)
             elif jn is not None:
                 # judged as at its step: beside its nuisance, against the nuisance alone
                 own = [n for n in names if n.startswith(a.name + ".")]
@@ -104,7 +105,7 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps)
                 nulls = a.effect.null_variants(jn)
                 if nulls:
                     f = problem.fit(config.with_effect(Active(a.effect, nulls[0])), current.coefs(), jnames)
-            test, gain = judge(f, after, after.grams, hac, corr, null_sse)
+            test, gain = judge(f, after, after.grams, hac, corr, null_sse, telling)
             verdicts.append((test["llr"], a, rnames, test, gain))
         llr, a, rnames, test, gain = min(verdicts, key=lambda v: v[0])
         if test["p"] >= level or gain.max() < s.min_gain:

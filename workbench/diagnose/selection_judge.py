@@ -23,7 +23,7 @@ def block_llr(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams) -> np.ndarray:
 
 
 def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correction: np.ndarray | None = None,
-          null_sse_c: np.ndarray | None = None):
+          null_sse_c: np.ndarray | None = None, telling: np.ndarray | None = None):
     """Held-out test of ``after`` against ``before``: t, p, llr and per-channel relative MSE reduction.
 
     ``correction``: per block, what the same per-run fit gains at off-peak variants, ``(k, nb)`` (or
@@ -31,7 +31,8 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
     their spread (:func:`_null_spread_test`), otherwise by the blocks' own scatter.
     ``null_sse_c``: the variants' squared error per block and channel, ``(k, nb, channels)``. With
     ``k >= 3`` the per-channel gain is then what ``after`` removes beyond the variants' mean
-    (:func:`_gain_beyond_nulls`), the same comparison the test makes.
+    (:func:`_gain_beyond_nulls`), the same comparison the test makes, over the blocks whose runs can
+    tell the effect from the misfit (``telling``, per block; None: all held-out blocks).
     """
     raw = block_llr(before, after, gr).sum(axis=1)
     nulls = None
@@ -55,7 +56,8 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
         total = float(raw[h].sum())
         gain_c = gain_c * (min(1.0, max(0.0, float(g.sum())) / total) if total > 0 else 0.0)
     if nulls is not None and len(nulls) >= 3 and null_sse_c is not None:
-        gain_c = _gain_beyond_nulls(before, after, np.asarray(null_sse_c), gr.heldout)
+        h_gain = gr.heldout if telling is None else gr.heldout & np.asarray(telling, bool)
+        gain_c = _gain_beyond_nulls(before, after, np.asarray(null_sse_c), h_gain)
     if n < 3:
         return {"t": 0.0, "p": 1.0, "llr": float(g.sum()), "n_blocks": n}, gain_c
     if nulls is not None and len(nulls) >= 3:
@@ -81,6 +83,7 @@ def _gain_beyond_nulls(before: lsq.Fit, after: lsq.Fit, null_sse_c: np.ndarray, 
     costs more than the fit gains, the variants lose as much as the fit at the proposed value, so a
     plain held-out gain would charge the nuisance's cost to the effect. What the variants leave, less
     what the fit leaves, is the effect's own share; never above the plain gain's ceiling of 1.
+    ``heldout``: the blocks counted (the held-out blocks of the runs that can tell the effect).
     """
     sb = before.sse_block_c[heldout].sum(axis=0)
     sa = after.sse_block_c[heldout].sum(axis=0)

@@ -321,6 +321,15 @@ class Effect:
         """Parameter values that should explain nothing (the null of per-run nuisance fits)."""
         return []
 
+    def telling_runs(self, nl: dict, rs) -> np.ndarray | None:
+        """Per run of the batch ``rs``: whether it can tell the effect from the base model's misfit (None: all can).
+
+        A per-run fit judged against its :meth:`null_variants` fits the runs that cannot tell
+        (a flow tone on a gait harmonic) with the same columns as its variants; its held-out gain
+        is counted over the runs that can.
+        """
+        return None
+
     def judged_as(self, nl: dict) -> dict | None:
         """The values the effect is judged under on held-out runs, when they differ from ``nl`` (None: ``nl``).
 

@@ -238,6 +238,15 @@ class FlowUnsteadiness(Effect):
         return Terms(local_names=list(self.LOCAL),
                      local=[np.where(hit | gone, 0.0, c) for c in free_cols] + [np.where(hit, c, 0.0) for c in held])
 
+    def telling_runs(self, nl: dict, rs) -> np.ndarray | None:  # noqa: D102
+        # stroke-free columns: the runs whose gait harmonics miss the candidate's line (force_terms' mask)
+        if not all(hasattr(rs, k) for k in ("fit", "freq")) or not self._free(rs, nl):
+            return None
+        from workbench.diagnose.flowsens import on_harmonic
+
+        dur = np.asarray(rs.fit, bool).sum(axis=1) * rs.dt_s
+        return ~on_harmonic(self._mask_hz(nl), np.asarray(rs.freq, float), dur)
+
     def _free(self, rs, nl: dict) -> bool:
         """Stroke-free columns: ``nl["stroke_free"]`` (the line check's fit) or the option (``auto``: no reference)."""
         if "stroke_free" in nl:
