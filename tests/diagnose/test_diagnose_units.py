@@ -46,6 +46,27 @@ def test_split_keeps_parameter_sets_together_and_survives_remeasuring():
         {round(r.params["theta_h_min_deg"], 3) for r, h in zip(again, held2, strict=False) if h}
 
 
+def test_split_cover_holds_out_every_shared_gait_frequency_and_keeps_one_for_training():
+    """``split_cover``: each gait frequency of two or more sets gets a held-out set and keeps a training one."""
+    # four gait frequencies, three sets each (the sets' other parameters differ)
+    runs = [_run(f"r{i}{u}", dict(_params(i), frequency_hz=0.3 + 0.1 * (i // 3)), u)
+            for i in range(12) for u in (0.0, 0.1, 0.2)]
+    plain = heldout_mask(runs, 0.3)
+    held = heldout_mask(runs, 0.3, cover="frequency_hz")
+    sides: dict[float, set] = {}
+    for r, h in zip(runs, held, strict=True):
+        sides.setdefault(round(r.params["frequency_hz"], 3), set()).add(bool(h))
+    assert all(v == {True, False} for v in sides.values()), sides
+    plain_sides: dict[float, set] = {}
+    for r, h in zip(runs, plain, strict=True):
+        plain_sides.setdefault(round(r.params["frequency_hz"], 3), set()).add(bool(h))
+    assert any(v != {True, False} for v in plain_sides.values())    # the hash alone left a frequency uncovered
+    # sets the hash holds out stay held out (only additions, and one release where a frequency was all held)
+    assert held.sum() >= plain.sum() - len(sides)
+    again = [_run(f"x{k}", dict(r.params), r.flow_speed_mps) for k, r in enumerate(reversed(runs))]
+    assert list(reversed(heldout_mask(again, 0.3, cover="frequency_hz"))) == list(held)
+
+
 def test_library_composes_and_names_its_terms():
     lib = AddedMassError() + DragCoefficientError() + LinkDrag()
     assert isinstance(lib, EffectLibrary)
