@@ -33,13 +33,19 @@ def main() -> int:
     ap.add_argument("--sets", type=int, default=12, help="parameter sets per campaign (x3 flow speeds)")
     ap.add_argument("--root", default=str(ROOT / "build" / "bench" / "diagnose"))
     ap.add_argument("--json", metavar="FILE", help="also write every result as JSON")
+    ap.add_argument("--data", metavar="KEY=VALUE", action="append", default=[],
+                    help="a diagnose data setting for every diagnosis, e.g. split_cover=frequency_hz (repeatable)")
     args = ap.parse_args()
 
     import battery as B
 
     root = Path(args.root)
     root.mkdir(parents=True, exist_ok=True)
-    bench = B.Bench(root, n_sets=args.sets)
+    data = {}
+    for kv in args.data:
+        key, _, value = kv.partition("=")
+        data[key] = type(getattr(B.data_defaults(), key))(value)
+    bench = B.Bench(root, n_sets=args.sets, data=data)
     modes = {"ref": [True], "noref": [False], "both": [True, False]}[args.mode]
     out = {}
     for model in args.model.split(","):

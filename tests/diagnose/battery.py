@@ -168,10 +168,12 @@ def all_cases(with_reference: bool = True) -> list[Case]:
 class Bench:
     """Campaigns, their ingested frames and clean diagnoses, made once per folder and model."""
 
-    def __init__(self, root: Path, n_sets: int = 12, max_runs: int = 0):
+    def __init__(self, root: Path, n_sets: int = 12, max_runs: int = 0, data: dict | None = None):
         self.root = Path(root)
         self.n_sets = n_sets
         self.max_runs = max_runs
+        #: further ``DataSettings`` values for every diagnosis (a benchmark's ``--data``)
+        self.data = dict(data or {})
         self._frames: dict[str, object] = {}
         self._clean: dict[tuple, object] = {}
 
@@ -208,7 +210,7 @@ class Bench:
         from workbench.diagnose.loop import DiagnoseSettings, diagnose
 
         s = DiagnoseSettings()
-        s = dataclasses.replace(s, data=dataclasses.replace(s.data, max_runs=self.max_runs))
+        s = dataclasses.replace(s, data=dataclasses.replace(s.data, max_runs=self.max_runs, **self.data))
         model = _model(model_spec)
         return diagnose(frame, model, model_spec, settings=s,
                         reference=self.reference() if with_reference else None)
@@ -229,6 +231,13 @@ class Bench:
 
 
 _MODELS: dict[str, object] = {}
+
+
+def data_defaults():
+    """The diagnosis's default data settings (what ``Bench(data=...)`` may change)."""
+    from workbench.diagnose.data import DataSettings
+
+    return DataSettings()
 
 
 def _model(spec: str):
