@@ -41,10 +41,14 @@ def main() -> int:
 
     root = Path(args.root)
     root.mkdir(parents=True, exist_ok=True)
-    data = {}
+    from workbench.diagnose.data import DataSettings
+
+    data, defaults = {}, DataSettings()
     for kv in args.data:
         key, _, value = kv.partition("=")
-        data[key] = type(getattr(B.data_defaults(), key))(value)
+        if not hasattr(defaults, key):
+            ap.error(f"--data {kv}: no data setting {key!r}; known: {', '.join(vars(defaults))}")
+        data[key] = type(getattr(defaults, key))(value)
     bench = B.Bench(root, n_sets=args.sets, data=data)
     modes = {"ref": [True], "noref": [False], "both": [True, False]}[args.mode]
     out = {}

@@ -233,13 +233,6 @@ class Bench:
 _MODELS: dict[str, object] = {}
 
 
-def data_defaults():
-    """The diagnosis's default data settings (what ``Bench(data=...)`` may change)."""
-    from workbench.diagnose.data import DataSettings
-
-    return DataSettings()
-
-
 def _model(spec: str):
     from workbench.hydro.legmodel import load_leg_model
 

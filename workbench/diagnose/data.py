@@ -120,14 +120,14 @@ def heldout_mask(runs: list[RunMotion], fraction: float, decimals: int = 3, cove
     h = {k: _unit_hash(k) for k in uniq}
     held = {k for k in uniq if h[k] < fraction}
     if cover and fraction > 0:
-        groups: dict[float, list[str]] = {}
+        groups: dict[float, set[str]] = {}
         for k, r in zip(keys, runs, strict=True):
-            if r.params and cover in r.params and k not in groups.get(round(float(r.params[cover]), decimals), []):
-                groups.setdefault(round(float(r.params[cover]), decimals), []).append(k)
-        for members in groups.values():
-            if len(members) >= 2 and not held & set(members):
+            if r.params and cover in r.params:
+                groups.setdefault(round(float(r.params[cover]), decimals), set()).add(k)
+        for members in (m for m in groups.values() if len(m) >= 2):
+            if not held & members:
                 held.add(min(members, key=h.get))
-            if len(members) >= 2 and set(members) <= held:
+            if members <= held:
                 held.discard(max(members, key=h.get))
     if len(uniq) >= 2 and fraction > 0:
         if not held:

@@ -49,15 +49,15 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
     sb = before.sse_block_c[gr.heldout].sum(axis=0)
     sa = after.sse_block_c[gr.heldout].sum(axis=0)
     gain_c = np.where(sb > 0, (sb - sa) / np.maximum(sb, 1e-300), 0.0)
-    if correction is not None:
+    if nulls is not None and len(nulls) >= 3 and null_sse_c is not None:
+        h_gain = gr.heldout if telling is None else gr.heldout & np.asarray(telling, bool)
+        gain_c = _gain_beyond_nulls(before, after, np.asarray(null_sse_c), h_gain)
+    elif correction is not None:
         # the per-run nuisance fit gains on noise too: count only what beats the off-peak fits
         # (a share in [0, 1]: with no held-out gain before the correction there is none after it; dividing by a
         # floor instead blew a positive remainder up to ~1e300)
         total = float(raw[h].sum())
         gain_c = gain_c * (min(1.0, max(0.0, float(g.sum())) / total) if total > 0 else 0.0)
-    if nulls is not None and len(nulls) >= 3 and null_sse_c is not None:
-        h_gain = gr.heldout if telling is None else gr.heldout & np.asarray(telling, bool)
-        gain_c = _gain_beyond_nulls(before, after, np.asarray(null_sse_c), h_gain)
     if n < 3:
         return {"t": 0.0, "p": 1.0, "llr": float(g.sum()), "n_blocks": n}, gain_c
     if nulls is not None and len(nulls) >= 3:
@@ -82,7 +82,7 @@ def _gain_beyond_nulls(before: lsq.Fit, after: lsq.Fit, null_sse_c: np.ndarray, 
     A per-run fit (a tone's phase in each run) moves the shared coefficients too; in runs where that
     costs more than the fit gains, the variants lose as much as the fit at the proposed value, so a
     plain held-out gain would charge the nuisance's cost to the effect. What the variants leave, less
-    what the fit leaves, is the effect's own share; never above the plain gain's ceiling of 1.
+    what the fit leaves, is the effect's own share (not clipped: negative where the fit loses to them).
     ``heldout``: the blocks counted (the held-out blocks of the runs that can tell the effect).
     """
     sb = before.sse_block_c[heldout].sum(axis=0)
