@@ -67,6 +67,15 @@ def test_split_cover_holds_out_every_shared_gait_frequency_and_keeps_one_for_tra
     assert list(reversed(heldout_mask(again, 0.3, cover="frequency_hz"))) == list(held)
 
 
+def test_a_split_cover_that_is_no_motion_parameter_is_a_params_error_naming_the_key(tmp_path):
+    from workbench.diagnose.loop_settings import DiagnoseSettings
+    from workbench.errors import ParamsError
+
+    with pytest.raises(ParamsError, match=r"split_cover 'frequency' is not a motion parameter.*frequency_hz"):
+        DiagnoseSettings.from_mapping({"data": {"split_cover": "frequency"}}, path="pipelines/diagnose.yaml")
+    assert DiagnoseSettings.from_mapping({"data": {"split_cover": "frequency_hz"}}).data.split_cover == "frequency_hz"
+
+
 def test_library_composes_and_names_its_terms():
     lib = AddedMassError() + DragCoefficientError() + LinkDrag()
     assert isinstance(lib, EffectLibrary)

@@ -42,6 +42,11 @@ class DataSettings:
     #: block length for significance tests and robust covariances (s)
     block_s: float = 2.0
 
+    def __post_init__(self):
+        if self.split_cover and self.split_cover not in TUNNEL_MOTION_PARAMS:
+            raise ValueError(f"split_cover {self.split_cover!r} is not a motion parameter; "
+                             f"one of {', '.join(TUNNEL_MOTION_PARAMS)}, or \"\" for none")
+
 
 @dataclass
 class RunSet:
