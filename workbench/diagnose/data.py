@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from workbench.contract.columns import TUNNEL_MOTION_PARAMS, WRENCH_CHANNELS
-from workbench.errors import DataError
+from workbench.errors import DataError, SettingError
 from workbench.hydro.motion import LegMotion, RunMotion, runs_from_frame
 
 
@@ -44,7 +44,7 @@ class DataSettings:
 
     def __post_init__(self):
         if self.split_cover and self.split_cover not in TUNNEL_MOTION_PARAMS:
-            raise ValueError(f"split_cover {self.split_cover!r} is not a motion parameter; "
+            raise SettingError(f"split_cover {self.split_cover!r} is not a motion parameter; "
                              f"one of {', '.join(TUNNEL_MOTION_PARAMS)}, or \"\" for none")
 
 
