@@ -3,6 +3,8 @@
 The ingest's low-pass takes a 7 Hz, zeta 0.12 resonance out of the readings; what is left in band is a delay
 and a term in the readings' second derivative, which a servo's lag or a missing inertia also make
 (with the FED-LSTM as base, a 25 ms command lag was claimed as an 18 ms servo and a "7 Hz mode").
+And a mode must ring: the residual before it must rise at f_n over its flanks (``not_ringing``); an
+inverse mode is also a notch on residual power, which gains on a residual with no resonance in it.
 Rich-truth campaign, mode planted by the tests' own formula (``planting.mode``).
 """
 
@@ -14,7 +16,12 @@ import pytest
 
 
 @pytest.fixture(scope="module")
-def probe(tmp_path_factory):
+def bench(tmp_path_factory):
+    b = battery.Bench(tmp_path_factory.mktemp("modeband"), n_sets=4)
+    return b, b.new_campaign()
+
+
+def _probe(bench, folder):
     from workbench.diagnose.chain import Configuration, Lowpass
     from workbench.diagnose.data import prepare
     from workbench.diagnose.evidence import analyse
@@ -22,12 +29,23 @@ def probe(tmp_path_factory):
     from workbench.diagnose.problem import Problem, run_residuals
     from workbench.hydro.legmodel import load_leg_model
 
-    bench = battery.Bench(tmp_path_factory.mktemp("modeband"), n_sets=4)
-    folder = planting.copy_campaign(bench.new_campaign(), bench.root / "mode45", [planting.mode(4.5, 0.08)])
     problem = Problem(prepare(bench.frame(folder)), load_leg_model("ef"), Lowpass(6.0, 4))
     fit = problem.fit(Configuration(), names=[])
     res = run_residuals(problem, Configuration(), fit)
     return Probe(problem, DiagnoseSettings(), 6.0, res, analyse(res, lowpass=problem.lowpass)), fit
+
+
+@pytest.fixture(scope="module")
+def probe(bench):
+    b, campaign = bench
+    return _probe(b, planting.copy_campaign(campaign, b.root / "mode45", [planting.mode(4.5, 0.08)]))
+
+
+@pytest.fixture(scope="module")
+def clean(bench):
+    """The same campaign with nothing planted."""
+    b, campaign = bench
+    return _probe(b, campaign)
 
 
 def _candidate(problem, f_n, zeta):
@@ -71,3 +89,14 @@ def test_the_planted_mode_in_band_passes_the_band_rule(probe):
     why = eff.check(cand, p, Configuration(), fit)
     assert why is None, why
     assert eff.explained_frequencies({"f_n_hz": 4.5, "zeta": 0.08}) == [4.5]
+
+
+@pytest.mark.parametrize("f_n, zeta", [(6.8, 0.02), (3.5, 0.05), (5.2, 0.1)])
+def test_a_mode_where_the_residual_does_not_ring_is_refused(clean, f_n, zeta):
+    """No mode planted: an inverse "mode" is a notch on residual power, not a resonance the data show."""
+    from workbench.diagnose.chain import Configuration
+
+    p, fit = clean
+    eff, cand = _candidate(p.problem, f_n, zeta)
+    why = eff.check(cand, p, Configuration(), fit)
+    assert why is not None and "does not ring" in why, why
