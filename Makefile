@@ -10,6 +10,9 @@ export PATH := $(abspath $(BIN)):$(PATH)
 export MPLBACKEND := Agg
 # one BLAS thread: on 2 shared cores multi-threaded OpenBLAS made small products 1000x slower
 export OPENBLAS_NUM_THREADS := 1
+# compiled bytecode is cached (__pycache__/, git-ignored) even where the shell sets PYTHONDONTWRITEBYTECODE: without
+# the cache every test worker re-rewrote all test files' asserts and every workbench process recompiled the package
+unexport PYTHONDONTWRITEBYTECODE
 
 .PHONY: setup system-deps demo test test-fast bench paper lint clean-demo
 

@@ -125,6 +125,7 @@ def test_the_walks_find_what_they_look_for(tmp_path):
     assert _convergence_raises(src) == [(15, "DataError")]
 
 
+@pytest.mark.slow  # 4.7 s of CPU idle: an AST walk of every module (29 Nov 2026)
 def test_every_module_raises_typed_errors():
     """One walk over all modules (one test, not one per module: ~170 tests cost 3 s of fixture set-up)."""
     faults = []

@@ -80,6 +80,7 @@ def test_same_seed_same_gait_file(tmp_path):
     assert json.loads(files[0])["seed"] == 7
 
 
+@pytest.mark.slow  # 4.5 s of CPU idle (29 Nov 2026)
 def test_bad_input_is_one_line_and_leaves_results_alone(tmp_path, capsys):
     params = _params(tmp_path)
     out = tmp_path / "gaits"

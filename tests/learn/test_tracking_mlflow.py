@@ -107,6 +107,7 @@ def test_a_dvc_stage_run_and_a_manual_run_are_named_apart(trained, project, parq
     assert a.data.tags["state"] == b.data.tags["state"] == "complete"
 
 
+@pytest.mark.slow  # 5.5 s of CPU idle (29 Nov 2026)
 def test_every_parameter_is_logged_and_a_long_value_is_marked(project):
     from workbench.tracking import TRUNCATED, run_tags, tracked_run
 
