@@ -100,3 +100,47 @@ def test_a_mode_where_the_residual_does_not_ring_is_refused(clean, f_n, zeta):
     eff, cand = _candidate(p.problem, f_n, zeta)
     why = eff.check(cand, p, Configuration(), fit)
     assert why is not None and "does not ring" in why, why
+
+
+def _runs(signal_fn, n_runs=8, seconds=12.0, dt=0.01, seed=3):
+    """Residual-like runs (``resid``, ``fit``, ``dt_s``) of six channels each from ``signal_fn(rng, n, dt)``."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    n = int(seconds / dt)
+    return [SimpleNamespace(resid=signal_fn(rng, n, dt), fit=np.ones(n, bool), dt_s=dt) for _ in range(n_runs)]
+
+
+def _ringing(rng, n, dt, f_n=4.0, zeta=0.05):
+    """White noise through the test's own mode wn^2 / (s^2 + 2 zeta wn s + wn^2) (bilinear at 100 Hz: f_n warps 0.5 % low)."""
+    import numpy as np
+    from scipy import signal
+
+    wn = 2 * np.pi * f_n
+    b, a = signal.bilinear([wn * wn], [1.0, 2 * zeta * wn, wn * wn], fs=1 / dt)
+    return signal.lfilter(b, a, rng.standard_normal((n, 6)), axis=0) + 0.05 * rng.standard_normal((n, 6))
+
+
+def _brown(rng, n, dt):
+    """A smooth falling spectrum and no resonance: white noise integrated once, plus white noise."""
+    import numpy as np
+
+    return np.cumsum(rng.standard_normal((n, 6)), axis=0) * dt * 5 + 0.1 * rng.standard_normal((n, 6))
+
+
+def test_the_rise_measures_a_resonance_and_not_a_falling_spectrum():
+    """`resonance_rise` on data made by the test's own mode: the rise at f_n and not beside it, none on noise."""
+    from workbench.diagnose.effects.resonance import StructuralResonance, resonance_rise
+
+    ring = _runs(_ringing)
+    at, n_c, n_f = resonance_rise(ring, 4.0, 0.05)
+    assert at.min() > 3.0 and n_c > 0 and n_f > n_c, at
+    beside, _, _ = resonance_rise(ring, 2.5, 0.05)
+    assert beside.max() < 1.5, beside
+    flat, _, _ = resonance_rise(_runs(_brown), 4.0, 0.05)
+    assert flat.max() < 1.6, flat
+    assert StructuralResonance().not_ringing({"f_n_hz": 4.0, "zeta": 0.05}, ring, None) is None
+    why = StructuralResonance().not_ringing({"f_n_hz": 4.0, "zeta": 0.05}, _runs(_brown), None)
+    assert why is not None and "does not ring" in why
