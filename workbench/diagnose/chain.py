@@ -35,6 +35,12 @@ class Lowpass:
 
         return lowpass(x, 1.0 / dt_s, self.cutoff_hz, self.order, axis=axis)
 
+    def power_gain(self, freqs_hz: np.ndarray, dt_s: float) -> np.ndarray:
+        """The filter's power gain at ``freqs_hz`` (floored at 1e-12, so spectra may be divided by it)."""
+        from workbench.signals.filters import frequency_response_db
+
+        return np.maximum(10 ** (frequency_response_db(freqs_hz, 1.0 / dt_s, self.cutoff_hz, self.order) / 10), 1e-12)
+
 
 @dataclass
 class Active:

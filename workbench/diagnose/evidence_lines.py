@@ -190,8 +190,6 @@ def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None
     """
     from scipy import signal as sig
 
-    from workbench.signals.filters import frequency_response_db
-
     s = settings or EvidenceSettings()
     parts = [(r, r.resid[r.rest]) for r in _rested(runs, min_rest_s)]
     if len(parts) < 2:
@@ -212,8 +210,7 @@ def rest_lines(runs: list[RunResidual], settings: EvidenceSettings | None = None
         scales.append(np.median(p, axis=0))
     sc = np.asarray(scales)
     dof = float(np.min(2.0 * sc.sum(axis=0) ** 2 / np.maximum((sc ** 2).sum(axis=0), 1e-300)))
-    gain = (np.ones(len(f)) if lowpass is None else
-            np.maximum(10 ** (frequency_response_db(f, 1.0 / dt, lowpass.cutoff_hz, lowpass.order) / 10), 1e-12))
+    gain = np.ones(len(f)) if lowpass is None else lowpass.power_gain(f, dt)
     white = total / gain[:, None]
     floor = np.empty_like(total)
     gap = 2.0 / t_rest

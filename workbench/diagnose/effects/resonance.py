@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from workbench.contract.columns import WRENCH_CHANNELS
 from workbench.diagnose.effects.base import Effect, SearchParam
 from workbench.diagnose.evidence import ccf_clause
 
@@ -338,8 +339,6 @@ class StructuralResonance(Effect):
         level = max(self.min_rise, float(stats.f.ppf(1 - self.ring_alpha / 6, 4 / 3 * n_centre, 4 / 3 * n_flanks)))
         if float(np.max(rise)) >= level:
             return None
-        from workbench.contract.columns import WRENCH_CHANNELS
-
         c = int(np.argmax(rise))
         return (f"the held-out residual does not ring at f_n = {f_n:.2f} Hz (zeta {zeta:.3f}): its power there is "
                 f"at most {rise[c]:.2f}x its flanks' ({WRENCH_CHANNELS[c]}), a mount mode's at least {level:.2f}x")
@@ -385,8 +384,6 @@ class StructuralResonance(Effect):
         ratio = np.where(counted, after / np.maximum(before, 1e-300), 0.0)
         b, c = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
         if ratio[b, c] > self.max_band_raise:
-            from workbench.contract.columns import WRENCH_CHANNELS
-
             return (f"the inverse mode raises the held-out residual of {WRENCH_CHANNELS[c]} at "
                     f"{edges[b]:g}-{edges[b + 1]:g} Hz {ratio[b, c]:.2f}x")
         return None
@@ -403,10 +400,7 @@ def resonance_rise(runs: list, f_n_hz: float, zeta: float, lowpass=None) -> tupl
     least a bin and a half), over the geometric mean of the densities at ``2w-4w`` below and above
     (a power-law background cancels).
     """
-    from workbench.signals.filters import frequency_response_db
-
-    centre, low, high = np.zeros(6), np.zeros(6), np.zeros(6)
-    counts = np.zeros(3)
+    acc, counts = np.zeros((3, 6)), np.zeros(3)   # the band, the lower and the upper flank
     for r in runs:
         x = r.resid[r.fit]
         if len(x) < 16:
@@ -416,20 +410,18 @@ def resonance_rise(runs: list, f_n_hz: float, zeta: float, lowpass=None) -> tupl
         spec = np.abs(np.fft.rfft(x * taper[:, None], axis=0)) ** 2
         freq = np.fft.rfftfreq(len(x), r.dt_s)
         if lowpass is not None:
-            gain = 10 ** (frequency_response_db(np.maximum(freq, 1e-9), 1.0 / r.dt_s, lowpass.cutoff_hz,
-                                                lowpass.order) / 10)
-            spec = spec / np.maximum(gain, 1e-12)[:, None]
+            spec = spec / lowpass.power_gain(freq, r.dt_s)[:, None]
         w = max(zeta * f_n_hz, 1.5 * freq[1])
         d = freq - f_n_hz
         sels = (np.abs(d) <= w, (d <= -2 * w) & (d >= -4 * w) & (freq > 0), (d >= 2 * w) & (d <= 4 * w))
         if not all(sel.any() for sel in sels):
             continue
         for i, sel in enumerate(sels):
-            (centre, low, high)[i][:] += spec[sel].sum(axis=0)
+            acc[i] += spec[sel].sum(axis=0)
             counts[i] += int(sel.sum())
     if not counts.all():
         return None
-    dens = [a / n for a, n in zip((centre, low, high), counts, strict=True)]
+    dens = acc / counts[:, None]
     return dens[0] / np.maximum(np.sqrt(dens[1] * dens[2]), 1e-300), int(counts[0]), int(counts[1] + counts[2])
 
 
