@@ -233,6 +233,19 @@ def test_settings_reject_unknown_keys_and_the_pipeline_file_loads():
         DiagnoseSettings.from_mapping({"nonsense": 1})
 
 
+def test_the_shipped_pipeline_file_holds_the_code_defaults():
+    """`workbench diagnose` run outside the project (no pipelines/diagnose.yaml there) diagnoses as the demo does.
+
+    Before, the code analysed all runs and the file at most 96: on the demo campaign's 192 runs the
+    two claimed different effects (docs/diagnose.md, "What is weak").
+    """
+    from workbench.project import load_params
+
+    shipped = DiagnoseSettings.from_mapping(load_params("pipelines/diagnose.yaml", "diagnose"))
+    assert shipped == DiagnoseSettings()
+    assert DiagnoseSettings().data.max_runs == 96
+
+
 def test_a_frame_without_tunnel_columns_is_refused():
     frame = pl.DataFrame({"run_id": ["a"], "time_s": [0.0]})
     with pytest.raises(Exception, match="missing column"):

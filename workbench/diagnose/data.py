@@ -35,8 +35,11 @@ class DataSettings:
     include_rest: bool = False
     #: use every n-th analysis tick in fits (the data are low-passed far below the tick rate)
     tick_stride: int = 2
-    #: at most this many runs (deterministic subsample, all speeds of a set together); 0 = all
-    max_runs: int = 0
+    #: at most this many runs (deterministic subsample, all speeds of a set together); 0 = all. The
+    #: shipped pipelines/diagnose.yaml's value, so the command gives the same diagnosis from any folder
+    #: (run outside the project with the default 0, the demo campaign's 192 runs claimed a fy-from-tx
+    #: crosstalk and a lift the clean truth lacks; docs/diagnose.md, "What is weak")
+    max_runs: int = 96
     #: runs per padded batch (memory)
     chunk_runs: int = 48
     #: block length for significance tests and robust covariances (s)
