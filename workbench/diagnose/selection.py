@@ -158,7 +158,6 @@ class StepwiseSelection:
         path = path.copy()
         while path.rounds < s.max_effects:
             path.rounds += 1
-            self._release(problem, path)
             config, names, current, coefs = path.config, path.names, path.current, path.coefs
             remaining = [e for e in library if e.name not in config.names()]
             cands = candidates(s, problem, config, coefs, names, remaining, current, peaks_of, path.last_nl, progress)
@@ -181,30 +180,6 @@ class StepwiseSelection:
             self._accept(problem, path, best, table, alternatives, rivals)
             self._follow(problem, path, mine)
         return path
-
-    @staticmethod
-    def _release(problem, path: "_Path") -> None:
-        """Amplitudes held at a zero bound (:func:`held_at_bounds`) fitted again once they come back inside it (in place).
-
-        Held early in the selection, a circulatory lag's fast share stayed 0 in the clean demo
-        campaign although, with the other force effects in, it fits at 0.36: the effects that
-        came after took its part (a crosstalk among them). Each step first refits with the held
-        amplitudes free and keeps them when every one of them lies within its range.
-        """
-        held = [f"{a.name}.{n}" for a in path.config.actives if not a.effect.prunable
-                and len(a.effect.linear_names()) >= 2 for n in a.effect.linear_names()
-                if f"{a.name}.{n}" not in path.names and 0.0 in a.effect.ranges.get(n, (None, None))]
-        if not held:
-            return
-        names = path.names + held
-        fit = problem.fit(path.config, path.coefs, names)
-        co = fit.coefs()
-        for q in held:
-            eff = next(a.effect for a in path.config.actives if q.startswith(a.name + "."))
-            lo, hi = eff.ranges.get(q.split(".", 1)[1], (-np.inf, np.inf))
-            if not lo <= co[q] <= hi:
-                return
-        path.names, path.current, path.coefs = names, fit, co
 
     def _following(self, problem) -> bool:
         """Whether chosen look-ahead effects are searched again as the model grows (not with an expensive model)."""
