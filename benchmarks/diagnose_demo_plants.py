@@ -43,8 +43,17 @@ def _cases():
         "xt_fz_fy_5pc": B.Case("xt_fz_fy_5pc", lambda: [P.crosstalk("fz_n", "fy_n", 0.05)],
                                {"loadcell_crosstalk": {"x_fz_fy": 0.05}}),
     }
-    return lambda name: extra[name] if name in extra else (
-        B.pair(*name.split("+")) if "+" in name else B.case(name))
+    known = [*extra, *(c.name for c in B.SINGLES + B.COMMAND_SERVOS + B.TONE_RANGE + B.PROBE)]
+
+    def lookup(name: str):
+        if name in extra:
+            return extra[name]
+        unknown = [n for n in name.split("+") if n not in known]
+        if unknown:
+            raise SystemExit(f"--cases: no case {unknown[0]!r}; known: {', '.join(known)} (or two joined by '+')")
+        return B.pair(*name.split("+")) if "+" in name else B.case(name)
+
+    return lookup
 
 
 def _score(case, doc: dict, clean: dict | None) -> dict:

@@ -134,6 +134,10 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
         chans = [c for c, g in zip(CHANNELS, step_rel, strict=False) if g >= s.report.channel_min_gain]
         act = next(a for a in config.actives if a.name == name)
         eff_coefs = {k.split(".", 1)[1]: v for k, v in coefs.items() if k.split(".", 1)[0] == name}
+        # an amplitude held at its zero bound (selection_candidates.held_at_bounds) is reported as 0
+        held = [] if act.effect.prunable else [n for n in act.effect.linear_names() if n not in eff_coefs
+                                               and 0.0 in act.effect.ranges.get(n, (None, None))]
+        eff_coefs.update({n: 0.0 for n in held})
         eff_cov = {(a.split(".", 1)[1], b.split(".", 1)[1]): v for (a, b), v in cov.items()
                    if a.split(".", 1)[0] == name and b.split(".", 1)[0] == name}
         params, se = act.effect.canonical_params(eff_coefs, dict(act.nl), eff_cov,
@@ -145,7 +149,7 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
         alt = f"; {', '.join(step.alternatives)} explained nearly as much" if step.alternatives else ""
         sentence = (f"{hint + '; ' if hint else ''}adding {name} removes {step_rel.max():.0%} of the held-out "
                     f"{best_c} error (held-out t = {test['t']:.1f} over {test['n_blocks']} blocks){alt}.")
-        notes = list(act.effect.notes(eff_coefs))
+        notes = list(act.effect.notes(eff_coefs)) + [f"{n} held at its bound 0 (fitted past it)" for n in held]
         amb = [n for n in step.ambiguous_with if n != name]
         if amb:
             notes.append(f"the held-out data cannot tell {name} from {', '.join(amb)} (the winner's held-out "

@@ -59,6 +59,9 @@ class SelectionSettings:
     #: (``Effect.seed``: a servo's delay at the runs' onsets), is also tried from the first step on; that
     #: path wins only when its final held-out fit beats the others' (significant at ``alpha``)
     seeded_branches: bool = True
+    #: when no candidate can be claimed at a step, try the refused ones with amplitudes fitted past a zero
+    #: bound held at it (a circulatory lag's fast share; ``StepwiseSelection._held``)
+    held_fallback: bool = True
 
 
 @dataclass
