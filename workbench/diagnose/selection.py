@@ -36,7 +36,7 @@ from workbench.diagnose.chain import Active, Configuration
 from workbench.diagnose.effects.base import Effect, EffectLibrary
 from workbench.diagnose.selection_candidates import candidates, held_at_bounds
 from workbench.diagnose.selection_claims import ambiguous, assess, judge_all, magnitude_intervals, pick  # noqa: F401
-from workbench.diagnose.selection_finish import backward_check, drop_refused, refine
+from workbench.diagnose.selection_finish import backward_check, drop_refused, refine, settle
 from workbench.diagnose.selection_judge import _null_spread_test, block_llr, heldout_mse, judge  # noqa: F401
 from workbench.diagnose.selection_records import (  # noqa: F401 - importable from here as before the split
     Candidate,
@@ -321,6 +321,7 @@ class StepwiseSelection:
                     config, names, current, steps, table = go.config, go.names, go.current, go.steps, go.table
                     config, current = refine(self.settings, problem, config, current.coefs(), names, current)
                     config, names, current, steps, table = drop_refused(self.settings, problem, config, names, current, steps, table)
+        names, current = settle(self.settings, problem, config, names, current)
         config, names, current, steps = backward_check(self.settings, problem, config, names, current, steps)
         return SelectionResult(config, names, current, steps, table)
 

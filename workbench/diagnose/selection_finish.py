@@ -115,3 +115,33 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps)
             steps = [st for st in steps if st.candidate.effect.name != a.name]
             changed = True
     return config, names, current, steps
+
+
+def settle(s: SelectionSettings, problem, config, names, current, rounds: int = 6, tol: float = 1e-4):
+    """Refit until the entries of prunable effects (crosstalk, drift) settle, then prune them again on training runs.
+
+    An effect whose columns depend on its own current values (a crosstalk's misfit guard takes
+    the other channels' residuals after the crosstalk, :meth:`LoadcellCrosstalk._residual`)
+    reaches its fixed point by refits from its last values; its entries were chosen at its step
+    beside residuals that still held the crosstalk itself, so they are chosen again at the
+    fixed point by the same backward elimination (:func:`~workbench.diagnose.selection_candidates.prune`).
+    """
+    from workbench.diagnose.selection_candidates import prune
+    from workbench.diagnose.selection_records import Candidate
+
+    prunable = [a for a in config.actives if a.effect.prunable]
+    if not prunable:
+        return names, current
+    own = tuple(f"{a.name}." for a in prunable)
+    for _ in range(rounds):
+        new = problem.fit(config, current.coefs(), names)
+        old, co = current.coefs(), new.coefs()
+        current = new
+        if max((abs(co[k] - old.get(k, 0.0)) for k in co if k.startswith(own)), default=0.0) < tol:
+            break
+    for a in prunable:
+        cand = prune(s, problem, Candidate(a.effect, a, config, names, current), current.coefs())
+        if cand.names != names:
+            names = cand.names
+            current = problem.fit(config, current.coefs(), names)
+    return names, current
