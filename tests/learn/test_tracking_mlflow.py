@@ -126,6 +126,8 @@ def test_every_parameter_is_logged_and_a_long_value_is_marked(project):
     assert client.get_run(run.info.run_id).data.tags["state"] == "complete"
 
 
+# slow (docs/testing.md): 5.7 s alone, 7.9 s of CPU (measured 29 Nov 2026)
+@pytest.mark.slow
 def test_a_diagnosis_logs_every_setting(project, tmp_path):
     """diagnose (and gait) hand their settings to workbench.tracking: more than 100 are all logged (once cut at 100)."""
     import dataclasses
