@@ -321,7 +321,11 @@ class StepwiseSelection:
                     config, names, current, steps, table = go.config, go.names, go.current, go.steps, go.table
                     config, current = refine(self.settings, problem, config, current.coefs(), names, current)
                     config, names, current, steps, table = drop_refused(self.settings, problem, config, names, current, steps, table)
-        names, current = settle(self.settings, problem, config, names, current)
+        names, current, change = settle(self.settings, problem, config, names, current, tol=SETTLE_TOL)
+        if change > SETTLE_TOL:
+            # a fixed point not reached is not a result: the record says so beside the claims
+            table = [*table, {"effect": "settle", "label": "settle", "t": 0.0, "p": 1.0, "llr": 0.0, "max_gain": 0.0,
+                              "ok": False, "note": f"crosstalk/drift entries did not settle: last change {change:.2g}"}]
         config, names, current, steps = backward_check(self.settings, problem, config, names, current, steps)
         return SelectionResult(config, names, current, steps, table)
 
@@ -332,6 +336,9 @@ class StepwiseSelection:
         d = problem.design(rs, Configuration(), {})
         return d.predict({}), rs.fit
 
+
+#: largest change of a crosstalk's or drift's entries in the last refit for them to count as settled
+SETTLE_TOL = 1e-4
 
 #: rounds the selection may go on after the final refinement has moved a look-ahead effect's values
 FOLLOW_ROUNDS = 2

@@ -68,7 +68,7 @@ def _linear_candidates(s: SelectionSettings, problem, config, coefs, names, effe
 def held_at_bounds(problem, gr: lsq.Grams, nm: list[str], group, f: lsq.Fit) -> tuple[list[str], lsq.Fit]:
     """The fit with amplitudes that went past a zero bound of their plausible range held at it.
 
-    Only a fallback: :meth:`~workbench.diagnose.selection.StepwiseSelection._forward` tries it
+    Only a fallback: :meth:`~workbench.diagnose.selection.StepwiseSelection._held` tries it
     when no freely fitted candidate can be claimed at a step (held early, the lag's fast share
     stayed 0 to the end on the battery's campaign, and the other effects took its part).
 

@@ -8,10 +8,13 @@ drops, weakest first, an effect the held-out test no longer supports once the ot
 
 from __future__ import annotations
 
+import numpy as np
+
 from workbench.diagnose.chain import Active
+from workbench.diagnose.selection_candidates import prune
 from workbench.diagnose.selection_claims import null_correction, telling_blocks
 from workbench.diagnose.selection_judge import judge
-from workbench.diagnose.selection_records import SelectionSettings
+from workbench.diagnose.selection_records import Candidate, SelectionSettings
 from workbench.diagnose.selection_search import parabola, search
 
 
@@ -125,23 +128,25 @@ def settle(s: SelectionSettings, problem, config, names, current, rounds: int = 
     reaches its fixed point by refits from its last values; its entries were chosen at its step
     beside residuals that still held the crosstalk itself, so they are chosen again at the
     fixed point by the same backward elimination (:func:`~workbench.diagnose.selection_candidates.prune`).
-    """
-    from workbench.diagnose.selection_candidates import prune
-    from workbench.diagnose.selection_records import Candidate
 
+    Returns ``(names, fit, change)``: ``change`` is the entries' largest change in the last refit,
+    at most ``tol`` when they settled (the caller records it in the selection table otherwise).
+    """
     prunable = [a for a in config.actives if a.effect.prunable]
     if not prunable:
-        return names, current
+        return names, current, 0.0
     own = tuple(f"{a.name}." for a in prunable)
+    change = np.inf
     for _ in range(rounds):
         new = problem.fit(config, current.coefs(), names)
         old, co = current.coefs(), new.coefs()
         current = new
-        if max((abs(co[k] - old.get(k, 0.0)) for k in co if k.startswith(own)), default=0.0) < tol:
+        change = max((abs(co[k] - old.get(k, 0.0)) for k in co if k.startswith(own)), default=0.0)
+        if change < tol:
             break
     for a in prunable:
         cand = prune(s, problem, Candidate(a.effect, a, config, names, current), current.coefs())
         if cand.names != names:
             names = cand.names
             current = problem.fit(config, current.coefs(), names)
-    return names, current
+    return names, current, change
