@@ -30,7 +30,8 @@ def main() -> int:
     ap.add_argument("--mode", default="both", choices=["ref", "noref", "both"],
                     help="with --reference (a clean campaign of the same rig), without, or both")
     ap.add_argument("--cases", help="comma-separated case names, or 'probe' (default: the battery's)")
-    ap.add_argument("--sets", type=int, default=12, help="parameter sets per campaign (x3 flow speeds)")
+    ap.add_argument("--sets", type=int, default=12,
+                    help="parameter sets per campaign (x3 flow speeds; 1-64, the first 12 are the CI tests')")
     ap.add_argument("--root", default=str(ROOT / "build" / "bench" / "diagnose"))
     ap.add_argument("--json", metavar="FILE", help="also write every result as JSON")
     ap.add_argument("--data", metavar="KEY=VALUE", action="append", default=[],

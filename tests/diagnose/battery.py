@@ -33,10 +33,23 @@ GRID = [
 ]
 
 
+def _more_sets() -> list[tuple]:
+    """Sets beyond :data:`GRID` for larger campaigns (``--sets`` up to 64): the rest of the 4 x 4 x 4 grid of
+    theta_h_min, theta_k_max and f in a fixed shuffled order, phases in turn (the first 12 stay GRID's)."""
+    taken = {(a, b, f) for a, b, f, _ in GRID}
+    rest = [(a, b, f) for a in (10.0, -10.0, -30.0, -50.0) for b in (-20.0, -40.0, -60.0, -80.0)
+            for f in (0.3, 0.4, 0.5, 0.6) if (a, b, f) not in taken]
+    order = np.random.default_rng(0).permutation(len(rest))
+    return [(*rest[i], (1 + k % 5) * np.pi / 3) for k, i in enumerate(order)]
+
+
 def grid(n_sets: int) -> list[dict]:
-    """The first ``n_sets`` sets as manifest parameters."""
+    """The first ``n_sets`` sets as manifest parameters (GRID's 12, then :func:`_more_sets`)."""
+    sets = GRID + _more_sets()
+    if not 1 <= n_sets <= len(sets):
+        raise SystemExit(f"battery campaigns hold 1 to {len(sets)} parameter sets, not {n_sets}")
     return [dict(theta_h_min_deg=a, theta_h_max_deg=-100.0, theta_k_min_deg=80.0, theta_k_max_deg=b,
-                 frequency_hz=f, phi_rad=p, alpha_rad=0.0) for a, b, f, p in GRID[:n_sets]]
+                 frequency_hz=f, phi_rad=p, alpha_rad=0.0) for a, b, f, p in sets[:n_sets]]
 
 
 def rich_campaign(root: Path, seed: int, n_sets: int = 12) -> Path:

@@ -111,12 +111,18 @@ def line_scan(runs: list[RunResidual], parts: list[np.ndarray], settings: Eviden
     ``w``: a strong line's sidelobes, -31 dB, do not pose as lines of their own), so a line keeps
     the resolution 1/T of the whole run, finer than a Welch segment. Zero-padded FFTs at every
     third tick (far above the low-pass cutoff). Returns ``(freqs, scan (F, 6), dof)``.
+
+    The scan reaches half a floor window past ``fmin_hz`` and ``fmax_hz`` (:func:`find_peaks` looks
+    for lines between them only), so the running-median floor is two-sided at the band's ends:
+    cut at ``fmax_hz``, the rising skirt of something above the band (a FED-LSTM's clean demo copy:
+    tx power rising to 8.1 Hz) stood 5x over a one-sided floor and read as "a line at 6.50 Hz".
     """
     stride = 3
     lengths = [len(p[::stride]) for p in parts]
     nfft, fs = _scan_grid(runs[0].dt_s, stride, step_hz, max(lengths, default=8))
     freqs = np.fft.rfftfreq(nfft, 1 / fs)
-    band = (freqs >= settings.fmin_hz) & (freqs <= settings.fmax_hz)
+    margin = 0.5 * settings.floor_window_hz
+    band = (freqs > 0) & (freqs >= settings.fmin_hz - margin) & (freqs <= settings.fmax_hz + margin)
     total = np.zeros((int(band.sum()), 6))
     scales = []
     for _run, e in zip(runs, parts, strict=False):
