@@ -58,17 +58,3 @@ def test_a_line_inside_is_found_and_the_process_where_it_is_when_the_band_reache
     wide = _lines(runs, parts, fmax_hz=9.0)
     assert [f for f, c in wide if "tz_nm" in c and 6.7 <= f <= 7.3], wide
 
-
-def test_a_line_is_placed_within_half_a_bin_of_its_strongest_bin():
-    # the strongest bin by ratio to the floor (k - 1) is not the strongest in power (k): a parabola through
-    # log powers 8.25, 10, 12 is almost straight, and its vertex lay 19 bins away (a "6.59 Hz" line with
-    # the band ending at 6.5 Hz was seen so on a FED-LSTM's residual)
-    s = EvidenceSettings()
-    f = np.arange(0.2, 6.5 + 1e-9, 0.02)
-    psd, floor = np.ones((len(f), 6)), np.ones((len(f), 6))
-    k = int(np.argmin(abs(f - 3.0)))
-    psd[k - 2: k + 1, 3] = [8.25, 10.0, 12.0]
-    floor[k, 3] = 2.0
-    found = find_peaks(f, psd, floor, 400.0, s)
-    assert len(found) == 1 and found[0].channels == ["tx_nm"], found
-    assert abs(found[0].frequency_hz - f[k - 1]) <= 0.5 * 0.02 + 1e-9, (found[0].frequency_hz, f[k - 1])

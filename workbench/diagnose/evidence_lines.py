@@ -82,8 +82,8 @@ def find_peaks(freqs, psd, floor, dof, s: EvidenceSettings) -> list[Peak]:
         if 0 < i < len(freqs) - 1:
             y0, y1, y2 = np.log(psd[i - 1:i + 2, c0])
             den = y0 - 2 * y1 + y2
-            if den < 0:  # a parabola's top lies within half a bin of its highest sample
-                fi = freqs[i] + float(np.clip(0.5 * (y0 - y2) / den, -0.5, 0.5)) * (freqs[1] - freqs[0])
+            if den < 0:
+                fi = freqs[i] + 0.5 * (y0 - y2) / den * (freqs[1] - freqs[0])
         p = float(stats.chi2.sf(ratio[i, c0] * dof, dof))
         peaks.append(Peak(float(fi), chans, {WRENCH_CHANNELS[c]: float(ratio[g, c].max()) for c in range(nc)
                                              if hit[g, c].any()}, p))
