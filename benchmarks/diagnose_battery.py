@@ -40,6 +40,7 @@ def main() -> int:
 
     import battery as B
 
+    B.grid(args.sets)  # refuses an impossible --sets in one line before any campaign is written
     root = Path(args.root)
     root.mkdir(parents=True, exist_ok=True)
     from workbench.diagnose.data import DataSettings
