@@ -326,7 +326,8 @@ class StepwiseSelection:
             # a fixed point not reached is not a result: the record says so beside the claims
             table = [*table, {"effect": "settle", "label": "settle", "t": 0.0, "p": 1.0, "llr": 0.0, "max_gain": 0.0,
                               "ok": False, "note": f"crosstalk/drift entries did not settle: last change {change:.2g}"}]
-        config, names, current, steps = backward_check(self.settings, problem, config, names, current, steps)
+        table = list(table)
+        config, names, current, steps = backward_check(self.settings, problem, config, names, current, steps, table)
         return SelectionResult(config, names, current, steps, table)
 
     @staticmethod

@@ -106,14 +106,18 @@ def held_at_bounds(problem, gr: lsq.Grams, nm: list[str], group, f: lsq.Fit) -> 
         f.grams = sub  # type: ignore[attr-defined]
 
 
+def peak_grid(s: SelectionSettings, effect, f0: float) -> dict[str, tuple]:
+    """The search grid of a line's effect: its first searched parameter within ``tone_window_hz`` of ``f0``."""
+    hw = s.tone_window_hz
+    return {effect.search[0].name: tuple(np.round(np.linspace(f0 - hw, f0 + hw, 9), 4))}
+
+
 def _nonlinear_candidate(s: SelectionSettings, problem, config, coefs, names, effect, peak=None, start=None) -> Candidate:
     """An effect with searched parameters fitted beside the chosen ones (a tone around ``peak``, others from ``start``)."""
     grids = None
     if effect.needs_peak:
-        f0 = peak.frequency_hz
-        hw = s.tone_window_hz
         # the frequency proposed by the evidence is the effect's first searched parameter
-        grids = {effect.search[0].name: tuple(np.round(np.linspace(f0 - hw, f0 + hw, 9), 4))}
+        grids = peak_grid(s, effect, peak.frequency_hz)
         start = None
     nl, profile = search(s, problem, config, coefs, names, effect, grids, start=start)
     if getattr(problem, "surrogate_search", False) and effect.stage == "input":
