@@ -76,15 +76,13 @@ def _harmonic_fit(run: RunResidual, cutoff_hz: float):
         return cache[cutoff_hz]
     k = max(1, int(np.floor(cutoff_hz / run.freq)))
     k = min(k, max(1, (len(t) - 2) // 4), MAX_HARMONICS)
-    coef = _solve(_harmonic_design(run, t, k), e)
+    x0 = _harmonic_design(run, t, k)
+    coef = _solve(x0, e)
     amp2 = coef[1:k + 1] ** 2 + coef[k + 1:] ** 2
     rel = amp2 / np.maximum(amp2.max(axis=0), 1e-300)
     strong = np.flatnonzero((rel >= ENVELOPE_SHARE).any(axis=1))[:ENVELOPE_ORDERS] + 1
     x = _harmonic_design(run, t, k, ENVELOPE_DEGREE, strong)
-    if x.shape[1] > 2 * k + 1 and len(t) > 4 * x.shape[1]:
-        locked = x @ _solve(x, e)
-    else:
-        locked = _harmonic_design(run, t, k) @ coef
+    locked = x @ _solve(x, e) if x.shape[1] > x0.shape[1] and len(t) > 4 * x.shape[1] else x0 @ coef
     cache[cutoff_hz] = (k, amp2, locked - locked.mean(axis=0))
     return cache[cutoff_hz]
 

@@ -60,6 +60,14 @@ def refine(s: SelectionSettings, problem, config, coefs, names, current):
     return config, current
 
 
+def _dropped_row(a: Active, note: str, test: dict | None = None, max_gain: float = 0.0, digits: int = 3) -> dict:
+    """The selection record's row for an effect dropped at the end (its values in the label; its test, if any)."""
+    label = ", ".join(f"{k}={v:.{digits}g}" for k, v in a.nl.items())
+    test = test or {"t": 0.0, "p": 1.0, "llr": 0.0}
+    return {"effect": a.name, "label": f"{a.name}({label})" if label else a.name, "t": float(test["t"]),
+            "p": float(test["p"]), "llr": float(test["llr"]), "max_gain": max_gain, "ok": False, "note": note}
+
+
 def drop_refused(s: SelectionSettings, problem, config, names, current, steps, table):
     """Drop effects whose refined searched values are refused or implausible, refining the rest each time.
 
@@ -76,9 +84,8 @@ def drop_refused(s: SelectionSettings, problem, config, names, current, steps, t
         bad = [n for n, w in why.items() if w]
         if not bad:
             return config, names, current, steps, table
-        label = ", ".join(f"{k}={v:.3g}" for k, v in next(a for a in config.actives if a.name == bad[0]).nl.items())
-        table.append({"effect": bad[0], "label": f"{bad[0]}({label})", "t": 0.0, "p": 1.0, "llr": 0.0,
-                      "max_gain": 0.0, "ok": False, "note": f"dropped after the final refinement: {why[bad[0]]}"})
+        table.append(_dropped_row(next(a for a in config.actives if a.name == bad[0]),
+                                  f"dropped after the final refinement: {why[bad[0]]}"))
         config = config.without(bad[0])
         names = [n for n in names if not n.startswith(bad[0] + ".")]
         steps = [st for st in steps if st.candidate.effect.name != bad[0]]
@@ -123,12 +130,10 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps,
         llr, a, rnames, test, gain = min(verdicts, key=lambda v: v[0])
         if test["p"] >= level or gain.max() < s.min_gain:
             if table is not None:
-                label = ", ".join(f"{k}={v:.4g}" for k, v in a.nl.items())
-                table.append({"effect": a.name, "label": f"{a.name}({label})" if label else a.name,
-                              "t": float(test["t"]), "p": float(test["p"]), "llr": float(test["llr"]),
-                              "max_gain": float(gain.max()), "ok": False,
-                              "note": f"claimed at its step, dropped in the final check: beside the others' final "
-                                      f"values p={test['p']:.2g} (level {level:.2g}), held-out gain {gain.max():.1%}"})
+                table.append(_dropped_row(
+                    a, f"claimed at its step, dropped in the final check: beside the others' final values "
+                       f"p={test['p']:.2g} (level {level:.2g}), held-out gain {gain.max():.1%}",
+                    test, float(gain.max()), digits=4))
             config = config.without(a.name)
             names = rnames
             current = problem.fit(config, current.coefs(), names)
