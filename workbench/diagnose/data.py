@@ -145,6 +145,21 @@ def heldout_mask(runs: list[RunMotion], fraction: float, decimals: int = 3, cove
     return np.array([k in held for k in keys])
 
 
+def crossfit_folds(runs: list[RunMotion], heldout: np.ndarray, folds: int, decimals: int = 3) -> np.ndarray:
+    """Per run, its fold of a cross-fitted test: 0 for the held-out sets, 1 .. ``folds`` - 1 for the training sets.
+
+    The training sets go to the folds in turn, in the order of their key's hash, so the folds
+    (like the split) depend on the sets alone and a re-measured campaign folds the same way; all
+    flow speeds of a set share its fold. Fold 0 is the split's held-out part, so a cross-fitted
+    test sees the split's held-out blocks exactly as the split does, and the rest besides.
+    """
+    keys = [parameter_key(dict(r.params), decimals) if r.params else r.run_id for r in runs]
+    held = np.asarray(heldout, bool)
+    train = sorted({k for k, h in zip(keys, held, strict=True) if not h}, key=_unit_hash)
+    fold_of = {k: 1 + i % max(folds - 1, 1) for i, k in enumerate(train)}
+    return np.array([0 if h else fold_of[k] for k, h in zip(keys, held, strict=True)], int)
+
+
 def _subsample(runs: list[RunMotion], max_runs: int, decimals: int) -> list[RunMotion]:
     """A deterministic subsample of whole parameter sets (by hash order) of at most ``max_runs`` runs."""
     if not max_runs or len(runs) <= max_runs:

@@ -14,7 +14,7 @@ import numpy as np
 
 from workbench.diagnose import lsq
 from workbench.diagnose.chain import Configuration, Lowpass, build_design, compare_filter
-from workbench.diagnose.data import Campaign, RunSet, make_blocks, make_runset
+from workbench.diagnose.data import Campaign, RunSet, crossfit_folds, make_blocks, make_runset
 from workbench.hydro.kinematics import DEFAULT_GEOMETRY
 from workbench.hydro.motion import LegMotion
 
@@ -149,6 +149,14 @@ class Problem:
         """Gaussian priors the effects of ``config`` put on the linear parameters in ``names`` (a blockage's Maskell factor)."""
         prior = {f"{a.name}.{k}": v for a in config.actives for k, v in (getattr(a.effect, "priors", dict)() or {}).items()}
         return {k: v for k, v in prior.items() if k in names} or None
+
+    def block_folds(self, grams: lsq.Grams, folds: int) -> np.ndarray:
+        """Per block of ``grams``, its run's fold of a cross-fitted test (:func:`~workbench.diagnose.data.crossfit_folds`)."""
+        cache = self.__dict__.setdefault("_folds", {})
+        if folds not in cache:
+            c = self.campaign
+            cache[folds] = crossfit_folds(c.runs, c.heldout, folds, c.settings.split_decimals)
+        return cache[folds][grams.run]
 
     def fit(self, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
             sets: str = "all", fixed: dict | None = None, surrogate: bool | None = None) -> lsq.Fit:

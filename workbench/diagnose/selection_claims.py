@@ -16,7 +16,7 @@ import numpy as np
 from workbench.diagnose import lsq
 from workbench.diagnose.chain import Active
 from workbench.diagnose.selection_candidates import prune
-from workbench.diagnose.selection_judge import block_llr, judge
+from workbench.diagnose.selection_judge import block_llr, crossfit_judge, judge
 from workbench.diagnose.selection_records import Candidate, SelectionSettings, record_row
 
 
@@ -67,9 +67,17 @@ def pick(s: SelectionSettings, problem, cands, table, coefs, current, config, le
 def assess(s: SelectionSettings, problem, c: Candidate, coefs, current, config, level: float, plausible) -> None:
     """Judge a candidate on the held-out runs and check every claim criterion (sets ``c.ok``, ``c.note``)."""
     judged = _judged(problem, c, coefs)
-    corr, null_sse = null_correction(problem, judged.effect, judged.config, judged.active.nl, judged.names, coefs, current)
-    telling = telling_blocks(problem, judged.effect, judged.active.nl, judged.fit.grams) if null_sse is not None else None
-    c.test, c.gain_c = judge(current, judged.fit, judged.fit.grams, problem.settings.hac_lags, corr, null_sse, telling)
+    fits = variant_fits(problem, judged.effect, judged.config, judged.active.nl, judged.names, coefs)
+    before = crossfit_before(s, judged, fits, current)
+    if before is not None:
+        c.test, c.gain_c = crossfit_judge(before, judged.fit, problem.block_folds(judged.fit.grams, s.judge_folds),
+                                          problem.weights, problem.settings.hac_lags)
+    else:
+        corr, null_sse = _correction(fits, current)
+        telling = (telling_blocks(problem, judged.effect, judged.active.nl, judged.fit.grams)
+                   if null_sse is not None else None)
+        c.test, c.gain_c = judge(current, judged.fit, judged.fit.grams, problem.settings.hac_lags, corr, null_sse,
+                                 telling)
     reasons = []
     if c.test["p"] >= level:
         reasons.append(f"not significant (p={c.test['p']:.2g} >= {level:.2g})")
@@ -124,15 +132,35 @@ def null_correction(problem, effect, config, nl: dict, names: list[str], coefs, 
     Returns per block the variants' log-likelihood gain over ``current``, ``(k, nb)``, and their
     squared error per block and channel, ``(k, nb, channels)``; ``(None, None)`` without variants.
     """
-    variants = effect.null_variants(nl)
-    if not variants:
+    return _correction(variant_fits(problem, effect, config, nl, names, coefs), current)
+
+
+def variant_fits(problem, effect, config, nl: dict, names: list[str], coefs) -> list[lsq.Fit]:
+    """The fits of ``effect``'s null variants of ``nl`` in ``config`` (none without variants)."""
+    return [problem.fit(config.with_effect(Active(effect, v)), coefs, names) for v in effect.null_variants(nl)]
+
+
+def _correction(fits: list[lsq.Fit], current: lsq.Fit):
+    if not fits:
         return None, None
-    gains, sse = [], []
-    for v in variants:
-        f = problem.fit(config.with_effect(Active(effect, v)), coefs, names)
-        gains.append(block_llr(current, f, f.grams).sum(axis=1))
-        sse.append(f.sse_block_c)
-    return np.array(gains), np.array(sse)
+    gains = [block_llr(current, f, f.grams).sum(axis=1) for f in fits]
+    return np.array(gains), np.array([f.sse_block_c for f in fits])
+
+
+def crossfit_before(s: SelectionSettings, judged: Candidate, fits: list[lsq.Fit], current: lsq.Fit) -> lsq.Fit | None:
+    """What a cross-fitted judgement of ``judged`` tests against (its one null variant, else ``current``); None: the split.
+
+    Cross-fitted (``Effect.crossfit``, ``judge_folds`` of 2 or more) only where both fits are linear
+    in shared columns: no per-run columns, at most one null variant (a nuisance alone; off-peak
+    variants of a per-run fit are weighed against their spread on the split).
+    """
+    if not judged.effect.crossfit or s.judge_folds < 2 or len(fits) > 1 or judged.partner is not None:
+        return None
+    before = fits[0] if fits else current
+    grams = [judged.fit.grams, getattr(before, "grams", None)]
+    if any(g is None or g.n_local for g in grams) or len(grams[0].n) != len(grams[1].n):
+        return None
+    return before
 
 
 def ambiguous(best: Candidate, cands: list[Candidate], level: float, hac: int,

@@ -3,11 +3,15 @@
 :func:`judge` tests ``after`` against ``before`` on the held-out blocks: by a one-sided t-test
 with a Newey-West variance over neighbouring blocks, or, for a per-run nuisance fit with off-peak
 variants, against the variants' own spread run by run (:func:`_null_spread_test`: F ratios combined
-by Fisher's method). The step's Bonferroni levels and the claim criteria are in
+by Fisher's method). :func:`crossfit_judge` makes the same test with every parameter set held out once
+(for effects that ask for it, ``Effect.crossfit``). The step's Bonferroni levels and the claim criteria are in
 :mod:`workbench.diagnose.selection_claims`.
 """
 
 from __future__ import annotations
+
+import dataclasses
+import types
 
 import numpy as np
 from scipy import stats
@@ -74,6 +78,34 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
     se = np.sqrt(max(var, 1e-300) / n / max(n - 1, 1))
     t = float(mean / se)
     return {"t": t, "p": float(stats.t.sf(t, df=max(n - 1, 1))), "llr": float(g.sum()), "n_blocks": n}, gain_c
+
+
+def crossfit_judge(before: lsq.Fit, after: lsq.Fit, fold: np.ndarray, weights: np.ndarray, hac_lags: int):
+    """:func:`judge` of ``after`` against ``before`` cross-fitted: each fold's blocks predicted by a fit on the others.
+
+    ``fold``: per block, its fold (0: the split's held-out sets, whose blocks keep the fits as
+    given; :func:`workbench.diagnose.data.crossfit_folds`). Both fits are linear in their columns,
+    so each fold is one more solve of the same block sums. The test then counts every block of
+    the campaign, not only the held-out sets': measured with the FED-LSTM on a re-measured demo
+    campaign (96 runs, 24 sets, 8 held out) with a 5 % fz-from-fy crosstalk planted, the split's
+    held-out runs gave t 2.4 (p 0.0087, under the level) where three folds give t 10-12; on the
+    clean copy t -1.4 to -4.7. The returned ``llr`` is the cross-fitted gain scaled to the
+    held-out share of the blocks (comparable with the split's gains of the other candidates of
+    a step, which the selection ranks by it); ``llr_crossfit`` is the whole gain.
+    """
+    gr, gb = after.grams, before.grams
+    fold = np.asarray(fold, int)
+    sse_a, sse_b = after.sse_block_c.copy(), before.sse_block_c.copy()
+    for k in np.unique(fold[fold > 0]):
+        m = fold == k
+        sse_a[m] = lsq.fit(dataclasses.replace(gr, heldout=m), weights, hac_lags).sse_block_c[m]
+        sse_b[m] = lsq.fit(dataclasses.replace(gb, heldout=m), weights, hac_lags).sse_block_c[m]
+    every = dataclasses.replace(gr, heldout=np.ones_like(gr.heldout))
+    test, gain_c = judge(types.SimpleNamespace(sse_block_c=sse_b), types.SimpleNamespace(sse_block_c=sse_a),
+                         every, hac_lags)
+    share = float(np.mean(gr.heldout)) if len(gr.heldout) else 0.0
+    folds = int(len(np.unique(fold)))
+    return {**test, "llr_crossfit": test["llr"], "llr": test["llr"] * share, "folds": folds}, gain_c
 
 
 def _gain_beyond_nulls(before: lsq.Fit, after: lsq.Fit, null_sse_c: np.ndarray, heldout: np.ndarray) -> np.ndarray:

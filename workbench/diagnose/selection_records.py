@@ -62,6 +62,9 @@ class SelectionSettings:
     #: when no candidate can be claimed at a step, try the refused ones with amplitudes fitted past a zero
     #: bound held at it (a circulatory lag's fast share; ``StepwiseSelection._held``)
     held_fallback: bool = True
+    #: effects that ask for it (``Effect.crossfit``: the crosstalk) are judged cross-fitted in this many folds of
+    #: parameter sets, the split's held-out sets one of them (``selection_judge.crossfit_judge``); 0 or 1: the split
+    judge_folds: int = 3
 
 
 @dataclass
@@ -122,6 +125,10 @@ class SelectionResult:
 
 def record_row(c: Candidate) -> dict:
     """A candidate's line in the selection record."""
-    return {"effect": c.effect.name, "label": c.label + (" (surrogate)" if c.surrogate else ""), "t": c.test["t"],
-            "p": c.test["p"], "llr": c.test["llr"], "max_gain": float(c.gain_c.max()), "ok": c.ok, "note": c.note}
+    row = {"effect": c.effect.name, "label": c.label + (" (surrogate)" if c.surrogate else ""), "t": c.test["t"],
+           "p": c.test["p"], "llr": c.test["llr"], "max_gain": float(c.gain_c.max()), "ok": c.ok, "note": c.note}
+    if "folds" in c.test:
+        # judged cross-fitted: llr is scaled to the held-out share of the blocks, llr_crossfit is the whole gain
+        row.update(folds=c.test["folds"], llr_crossfit=c.test["llr_crossfit"])
+    return row
 

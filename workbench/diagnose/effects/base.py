@@ -160,6 +160,10 @@ class Effect:
     #: it is acceptable at a step but another effect wins, the selection also follows the path that
     #: takes it there (a force effect taken first absorbs its misfit channel by channel)
     lookahead: bool = False
+    #: judged cross-fitted (``SelectionSettings.judge_folds``): every parameter set held out once, not only the
+    #: split's. For an effect whose judgement competes with a base model's misfit that differs from set to set
+    #: (a crosstalk beside a learned model's misfit), where a few held-out sets decide by their luck
+    crossfit: bool = False
 
     # ------------------------------------------------------------------ composition
     def __add__(self, other: "Effect | EffectLibrary") -> "EffectLibrary":
