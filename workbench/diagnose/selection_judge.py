@@ -88,8 +88,8 @@ def crossfit_judge(before: lsq.Fit, after: lsq.Fit, fold: np.ndarray, weights: n
     so each fold is one more solve of the same block sums. The test then counts every block of
     the campaign, not only the held-out sets': measured with the FED-LSTM on a re-measured demo
     campaign (96 runs, 24 sets, 8 held out) with a 5 % fz-from-fy crosstalk planted, the split's
-    held-out runs gave t 2.4 (p 0.0087, under the level) where three folds give t 10-12; on the
-    clean copy t -1.4 to -4.7. The returned ``llr`` is the cross-fitted gain scaled to the
+    held-out runs gave t 2.4 (p 0.0087, under the level) where three folds give t 10.8-12.1; on
+    the clean copy t -4.3 to 0.0 (``benchmarks/diagnose_crosstalk_judge.py``). The returned ``llr`` is the cross-fitted gain scaled to the
     held-out share of the blocks (comparable with the split's gains of the other candidates of
     a step, which the selection ranks by it); ``llr_crossfit`` is the whole gain.
     """
