@@ -200,3 +200,47 @@ def test_judged_beside_the_other_channels_misfit_a_small_crosstalk_is_significan
     assert x_model == pytest.approx(0.03, rel=0.2)
     assert x_judged == pytest.approx(0.03, rel=0.2)
     assert p_clean > 0.01, p_clean
+
+
+@pytest.mark.slow
+def test_fed_lstm_names_a_5pc_crosstalk_on_the_re_measured_demo_campaign(tmp_path):
+    """The lab's case: the demo campaign measured again (another seed of the virtual lab) after a change.
+
+    The demo's FED-LSTM was trained on the demo campaign's parameter sets, so here its misfit is
+    the small one of a re-measurement; still it differs from set to set, and on the split's eight
+    held-out sets a 5 % fz-from-fy crosstalk failed its test (t 2.4, p 0.0087). Judged with every
+    set held out once it is named (t 11.7), and once its entries settle, at its value: before the
+    final pruning came first, a spurious 0.0008 ty-from-fy entry moved the fz entry's guard, the
+    refits swung between 0.013 and 0.059 and it was reported at 0.040 (21 % off). The plant is the
+    test's own formula; the entry must be the planted one, within 20 %, alone, with nothing beside it.
+    """
+    import subprocess
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import planting
+
+    repo = Path(__file__).resolve().parents[2]
+    model = repo / "datasets" / "models" / "fed-lstm"
+    if not (model / "model.json").is_file():
+        pytest.skip("the trained FED-LSTM (datasets/models/fed-lstm) is made by dvc repro")
+    lab = tmp_path / "demo-tunnel-s11"
+    subprocess.run([sys.executable, "-m", "workbench", "virtual-lab", "tunnel", str(lab), "--params",
+                    str(repo / "pipelines" / "virtual_lab.yaml"), "--seed", "11"], check=True, capture_output=True)
+
+    def plant(lc, mo, run):                          # the test's own formula: fz reads 5 % of fy
+        lc["fz_n"] = lc["fz_n"] + 0.05 * lc["fy_n"]
+
+    copy = planting.copy_campaign(lab, tmp_path / "xt5", [plant])
+    from workbench.diagnose.loop import DiagnoseSettings, diagnose
+    from workbench.hydro.legmodel import load_leg_model
+    from workbench.ingest import ingest_campaign
+
+    frame = ingest_campaign(copy, params={"workers": 1}).frame
+    d = diagnose(frame, load_leg_model(str(model)), str(model), settings=DiagnoseSettings())
+    assert [e.name for e in d.effects] == ["loadcell_crosstalk"], [(e.name, e.params) for e in d.effects]
+    params = d.effects[0].params
+    assert set(params) == {"x_fz_fy"}, params
+    assert params["x_fz_fy"] == pytest.approx(0.05, rel=0.2), params
+    unsettled = [r["note"] for r in d.final_table if r.get("effect") == "settle"]
+    assert not unsettled, (unsettled, params)

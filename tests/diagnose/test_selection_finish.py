@@ -74,3 +74,15 @@ def test_an_effect_the_backward_check_drops_leaves_a_row_in_the_record(monkeypat
     assert [st.candidate.effect.name for st in kept] == ["link_drag"]
     assert len(table) == 1 and table[0]["effect"] == "lift" and not table[0]["ok"]
     assert "dropped in the final check" in table[0]["note"] and "p=0.38" in table[0]["note"]
+
+
+def test_an_entry_pruned_away_leaves_the_current_values():
+    from workbench.diagnose.selection_finish import _live
+
+    coefs = {"loadcell_crosstalk.x_fz_fy": 0.05, "loadcell_crosstalk.x_ty_fy": 0.0008, "sensor_drift.rate_fz": 1e-3,
+             "link_drag.cd_d_m": 0.006}
+    live = _live(coefs, ["loadcell_crosstalk.x_fz_fy", "sensor_drift.rate_fz", "link_drag.cd_d_m"],
+                 ("loadcell_crosstalk.", "sensor_drift."))
+    # the dropped ty entry no longer reaches the crosstalk's guard; other effects' values stay whatever their names
+    assert live == {"loadcell_crosstalk.x_fz_fy": 0.05, "sensor_drift.rate_fz": 1e-3, "link_drag.cd_d_m": 0.006}
+    assert _live(coefs, [], ("loadcell_crosstalk.",)) == {"sensor_drift.rate_fz": 1e-3, "link_drag.cd_d_m": 0.006}
