@@ -38,7 +38,6 @@ def main() -> int:
 
     import numpy as np
 
-    from workbench.diagnose import lsq
     from workbench.diagnose.chain import Active, Configuration, Lowpass
     from workbench.diagnose.data import parameter_key, prepare
     from workbench.diagnose.library import default_library
@@ -47,7 +46,7 @@ def main() -> int:
     from workbench.diagnose.problem import Problem
     from workbench.diagnose.selection_candidates import _linear_candidates, prune
     from workbench.diagnose.selection_claims import _judged, assess
-    from workbench.diagnose.selection_judge import crossfit_judge
+    from workbench.diagnose.selection_judge import crossfit_judge, crossfit_sse
     from workbench.hydro.legmodel import load_leg_model
     from workbench.ingest import ingest_campaign
     from workbench.params import read_section
@@ -86,12 +85,8 @@ def main() -> int:
         test, _ = crossfit_judge(null, j.fit, fold, problem.weights, problem.settings.hac_lags)
         print(f"  cross-fitted, draw {draw}: t {test['t']:.2f}, p {test['p']:.2g} over {test['n_blocks']} blocks")
     # the gain per set of the last draw: how much the misfit scatters it
-    sse_a, sse_b = j.fit.sse_block_c.copy(), null.sse_block_c.copy()
-    for k in range(1, args.folds):
-        m = fold == k
-        sse_a[m] = lsq.fit(dataclasses.replace(gr, heldout=m), problem.weights, problem.settings.hac_lags).sse_block_c[m]
-        sse_b[m] = lsq.fit(dataclasses.replace(null.grams, heldout=m), problem.weights,
-                           problem.settings.hac_lags).sse_block_c[m]
+    sse_a = crossfit_sse(j.fit, fold, problem.weights, problem.settings.hac_lags)
+    sse_b = crossfit_sse(null, fold, problem.weights, problem.settings.hac_lags)
     llr = (0.5 * gr.n[:, None] * np.log(np.maximum(sse_b, 1e-300) / np.maximum(sse_a, 1e-300))).sum(axis=1)
     per_set = np.array([llr[set_of_run[gr.run] == i].sum() for i in range(len(sets))])
     print(f"  gain per set (last draw): mean {per_set.mean():.1f}, sd {per_set.std(ddof=1):.1f}, "

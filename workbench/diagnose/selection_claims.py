@@ -154,13 +154,18 @@ def crossfit_before(s: SelectionSettings, judged: Candidate, fits: list[lsq.Fit]
     in shared columns: no per-run columns, at most one null variant (a nuisance alone; off-peak
     variants of a per-run fit are weighed against their spread on the split).
     """
-    if not judged.effect.crossfit or s.judge_folds < 2 or len(fits) > 1 or judged.partner is not None:
+    if len(fits) > 1 or judged.partner is not None:
         return None
     before = fits[0] if fits else current
-    grams = [judged.fit.grams, getattr(before, "grams", None)]
-    if any(g is None or g.n_local for g in grams) or len(grams[0].n) != len(grams[1].n):
-        return None
-    return before
+    return before if crossfit_applies(s, judged.effect, before, judged.fit) else None
+
+
+def crossfit_applies(s: SelectionSettings, effect, before: lsq.Fit, after: lsq.Fit) -> bool:
+    """Whether ``effect`` is judged cross-fitted between these fits: it asks for it, and both are shared-column fits."""
+    if not effect.crossfit or s.judge_folds < 2:
+        return False
+    grams = [after.grams, getattr(before, "grams", None)]
+    return not any(g is None or g.n_local for g in grams) and len(grams[0].n) == len(grams[1].n)
 
 
 def ambiguous(best: Candidate, cands: list[Candidate], level: float, hac: int,

@@ -12,7 +12,7 @@ import numpy as np
 
 from workbench.diagnose.chain import Active
 from workbench.diagnose.selection_candidates import peak_grid, prune
-from workbench.diagnose.selection_claims import null_correction, telling_blocks
+from workbench.diagnose.selection_claims import crossfit_applies, null_correction, telling_blocks
 from workbench.diagnose.selection_judge import crossfit_judge, judge
 from workbench.diagnose.selection_records import Candidate, SelectionSettings
 from workbench.diagnose.selection_search import parabola, search
@@ -125,8 +125,7 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps,
                 nulls = a.effect.null_variants(jn)
                 if nulls:
                     f = problem.fit(config.with_effect(Active(a.effect, nulls[0])), current.coefs(), jnames)
-            if (a.effect.crossfit and s.judge_folds >= 2 and corr is None and not after.grams.n_local
-                    and not f.grams.n_local):
+            if corr is None and crossfit_applies(s, a.effect, f, after):
                 # judged cross-fitted, as at its step (selection_claims.crossfit_before)
                 test, gain = crossfit_judge(f, after, problem.block_folds(after.grams, s.judge_folds), problem.weights,
                                             hac)

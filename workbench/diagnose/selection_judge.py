@@ -93,19 +93,24 @@ def crossfit_judge(before: lsq.Fit, after: lsq.Fit, fold: np.ndarray, weights: n
     held-out share of the blocks (comparable with the split's gains of the other candidates of
     a step, which the selection ranks by it); ``llr_crossfit`` is the whole gain.
     """
-    gr, gb = after.grams, before.grams
+    gr = after.grams
     fold = np.asarray(fold, int)
-    sse_a, sse_b = after.sse_block_c.copy(), before.sse_block_c.copy()
-    for k in np.unique(fold[fold > 0]):
-        m = fold == k
-        sse_a[m] = lsq.fit(dataclasses.replace(gr, heldout=m), weights, hac_lags).sse_block_c[m]
-        sse_b[m] = lsq.fit(dataclasses.replace(gb, heldout=m), weights, hac_lags).sse_block_c[m]
     every = dataclasses.replace(gr, heldout=np.ones_like(gr.heldout))
-    test, gain_c = judge(types.SimpleNamespace(sse_block_c=sse_b), types.SimpleNamespace(sse_block_c=sse_a),
+    test, gain_c = judge(types.SimpleNamespace(sse_block_c=crossfit_sse(before, fold, weights, hac_lags)),
+                         types.SimpleNamespace(sse_block_c=crossfit_sse(after, fold, weights, hac_lags)),
                          every, hac_lags)
     share = float(np.mean(gr.heldout)) if len(gr.heldout) else 0.0
     folds = int(len(np.unique(fold)))
     return {**test, "llr_crossfit": test["llr"], "llr": test["llr"] * share, "folds": folds}, gain_c
+
+
+def crossfit_sse(fit: lsq.Fit, fold: np.ndarray, weights: np.ndarray, hac_lags: int) -> np.ndarray:
+    """``fit``'s squared error per block and channel, each fold's blocks (but fold 0's) refitted on the other blocks."""
+    sse = fit.sse_block_c.copy()
+    for k in np.unique(fold[fold > 0]):
+        m = fold == k
+        sse[m] = lsq.fit(dataclasses.replace(fit.grams, heldout=m), weights, hac_lags).sse_block_c[m]
+    return sse
 
 
 def _gain_beyond_nulls(before: lsq.Fit, after: lsq.Fit, null_sse_c: np.ndarray, heldout: np.ndarray) -> np.ndarray:
