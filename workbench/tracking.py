@@ -552,13 +552,16 @@ def download_model(uri: str, tracking_uri_: str | None = None) -> tuple[Path, di
     """Resolve a ``models:/name@alias`` (or ``models:/name/version``) URI to a local folder and its version info.
 
     The folder is the version's artifacts as logged: an MLflow model (``MLmodel``, ...) for
-    versions logged by this workbench, a plain model folder for older ones.
+    versions logged by this workbench, a plain model folder for older ones. Read through the
+    version's storage URI: a ``models:/`` download of a local store hands back the store's own
+    folder and writes a ``registered_model_meta`` file into it, so loading a model changed the store.
     """
     import mlflow
 
     try:
         mv = resolve_version(uri, tracking_uri_)
-        path = mlflow.artifacts.download_artifacts(artifact_uri=mv.source)
+        where = mlflow.MlflowClient().get_model_version_download_uri(mv.name, mv.version)
+        path = mlflow.artifacts.download_artifacts(artifact_uri=where)
     except Exception as exc:  # noqa: BLE001 - MLflow raises many kinds; one line for the user
         raise ModelLoadError(f"cannot load {uri} from {mlflow.get_tracking_uri()} ({type(exc).__name__}: "
                              f"{str(exc).splitlines()[0][:160] if str(exc) else ''})",

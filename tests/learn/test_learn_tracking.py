@@ -75,10 +75,19 @@ split = ParameterSplit.from_dict(json.load(open({str(trained / 'split.json')!r})
 metrics, _ = evaluate_models(read_table([{str(interp)!r}]), split, {{"lstm": m}})
 print(json.dumps({{"run_id": m.info["run_id"], "uri": m.info["model_uri"], "mse": metrics["lstm"]["mse"]}}))
 """
+    # loading reads the store and writes nothing into it (MLflow's models:/ download of a local store
+    # wrote a registered_model_meta file into the logged model's own folder)
+    def store_files() -> dict:
+        return {p: p.stat().st_mtime_ns for p in project.rglob("*") if p.is_file() and p.suffix != ".db"
+                and "datasets" not in p.parts}
+
+    before = store_files()
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=subprocess_env(project),
                          cwd=project, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
+    after = store_files()
+    assert after == before, sorted(str(p) for p in set(after) ^ set(before) | {p for p in before if after.get(p) != before[p]})
     from mlflow import MlflowClient
 
     logged = MlflowClient().get_run(got["run_id"]).data.metrics
