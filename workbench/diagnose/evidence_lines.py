@@ -55,14 +55,18 @@ def spectral_floor(freqs: np.ndarray, psd: np.ndarray, window_hz: float) -> np.n
 
 
 def find_peaks(freqs, psd, floor, dof, s: EvidenceSettings) -> list[Peak]:
-    """Narrowband peaks: bins whose ratio to the floor is large and significant, grouped across channels."""
+    """Narrowband peaks: bins whose ratio to the floor is large and significant, grouped across channels.
+
+    ``dof``: the spectrum's chi-square degrees of freedom, one number or one per frequency.
+    """
     band = (freqs >= s.fmin_hz) & (freqs <= s.fmax_hz)
     nb = max(1, int(band.sum()))
     ratio = psd / floor
+    dof = np.broadcast_to(np.asarray(dof, float), np.shape(freqs))
     # Under noise, psd/floor ~ chi2(dof)/dof; Bonferroni over bins and channels.
     nc = psd.shape[1]
     crit = stats.chi2.isf(s.peak_alpha / (nb * nc), dof) / dof
-    hit = band[:, None] & (ratio >= max(s.peak_ratio, crit))
+    hit = band[:, None] & (ratio >= np.maximum(s.peak_ratio, crit)[:, None])
     peaks: list[Peak] = []
     rows = np.flatnonzero(hit.any(axis=1))
     groups: list[list[int]] = []
@@ -84,7 +88,7 @@ def find_peaks(freqs, psd, floor, dof, s: EvidenceSettings) -> list[Peak]:
             den = y0 - 2 * y1 + y2
             if den < 0:
                 fi = freqs[i] + 0.5 * (y0 - y2) / den * (freqs[1] - freqs[0])
-        p = float(stats.chi2.sf(ratio[i, c0] * dof, dof))
+        p = float(stats.chi2.sf(ratio[i, c0] * dof[i], dof[i]))
         peaks.append(Peak(float(fi), chans, {WRENCH_CHANNELS[c]: float(ratio[g, c].max()) for c in range(nc)
                                              if hit[g, c].any()}, p))
     return peaks

@@ -92,6 +92,22 @@ def gait_locked(run: RunResidual, cutoff_hz: float) -> np.ndarray:
     return _harmonic_fit(run, cutoff_hz)[2]
 
 
+def unlocked_share(runs: list[RunResidual], cutoff_hz: float) -> np.ndarray:
+    """Per channel, the share of the runs' residual power (fit ticks) left once each run's level and stroke-locked part are out.
+
+    What a disturbance that does not repeat every stroke (a flow tone) can at most remove.
+    """
+    total, rest = np.zeros(6), np.zeros(6)
+    for r in runs:
+        if r.fit.sum() < 16:
+            continue
+        e = r.resid[r.fit]
+        total += (e * e).sum(axis=0)
+        d = e - e.mean(axis=0) - gait_locked(r, cutoff_hz)
+        rest += (d * d).sum(axis=0)
+    return np.where(total > 0, rest / np.maximum(total, 1e-300), 1.0)
+
+
 def harmonic_tolerance(run: RunResidual) -> float:
     """How close (Hz) a frequency must be to a gait harmonic to be confused with it in this run."""
     return 0.8 / max(run.fit.sum() * run.dt_s, 1e-9)

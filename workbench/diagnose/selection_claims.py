@@ -68,12 +68,14 @@ def assess(s: SelectionSettings, problem, c: Candidate, coefs, current, config, 
     """Judge a candidate on the held-out runs and check every claim criterion (sets ``c.ok``, ``c.note``)."""
     judged = _judged(problem, c, coefs)
     fits = variant_fits(problem, judged.effect, judged.config, judged.active.nl, judged.names, coefs)
-    before = crossfit_before(s, judged, fits, current)
-    if before is not None:
+    plan = crossfit_plan(s, judged, fits, current)
+    if plan is not None:
+        before, variants = plan
+        telling = telling_blocks(problem, judged.effect, judged.active.nl, judged.fit.grams) if variants else None
         c.test, c.gain_c = crossfit_judge(before, judged.fit, problem.block_folds(judged.fit.grams, s.judge_folds),
-                                          problem.weights, problem.settings.hac_lags)
+                                          problem.weights, problem.settings.hac_lags, variants, telling)
     else:
-        corr, null_sse = _correction(fits, current)
+        corr, null_sse = variant_correction(fits, current)
         telling = (telling_blocks(problem, judged.effect, judged.active.nl, judged.fit.grams)
                    if null_sse is not None else None)
         c.test, c.gain_c = judge(current, judged.fit, judged.fit.grams, problem.settings.hac_lags, corr, null_sse,
@@ -81,8 +83,9 @@ def assess(s: SelectionSettings, problem, c: Candidate, coefs, current, config, 
     reasons = []
     if c.test["p"] >= level:
         reasons.append(f"not significant (p={c.test['p']:.2g} >= {level:.2g})")
-    if c.gain_c.max() < s.min_gain:
-        reasons.append(f"held-out gain {c.gain_c.max():.1%} < {s.min_gain:.0%}")
+    practical = c.effect.practical_gain(c.gain_c)
+    if practical.max() < s.min_gain:
+        reasons.append(f"held-out gain {practical.max():.1%} < {s.min_gain:.0%}")
     if not reasons:
         why = _implausible(c) or _refused(c, s)
         if why:
@@ -126,46 +129,49 @@ def telling_blocks(problem, effect, nl: dict, grams: lsq.Grams) -> np.ndarray | 
     return runs[grams.run] if told else None
 
 
-def null_correction(problem, effect, config, nl: dict, names: list[str], coefs, current: lsq.Fit):
-    """What the same per-run fit gains at ``effect``'s off-peak variants of ``nl``, in ``config``.
-
-    Returns per block the variants' log-likelihood gain over ``current``, ``(k, nb)``, and their
-    squared error per block and channel, ``(k, nb, channels)``; ``(None, None)`` without variants.
-    """
-    return _correction(variant_fits(problem, effect, config, nl, names, coefs), current)
-
-
 def variant_fits(problem, effect, config, nl: dict, names: list[str], coefs) -> list[lsq.Fit]:
     """The fits of ``effect``'s null variants of ``nl`` in ``config`` (none without variants)."""
     return [problem.fit(config.with_effect(Active(effect, v)), coefs, names) for v in effect.null_variants(nl)]
 
 
-def _correction(fits: list[lsq.Fit], current: lsq.Fit):
+def variant_correction(fits: list[lsq.Fit], current: lsq.Fit):
+    """What the same per-run fit gains at its off-peak variants (``fits``) over ``current``, for :func:`judge`.
+
+    Returns per block the variants' log-likelihood gain, ``(k, nb)``, and their squared error per
+    block and channel, ``(k, nb, channels)``; ``(None, None)`` without variants.
+    """
     if not fits:
         return None, None
     gains = [block_llr(current, f, f.grams).sum(axis=1) for f in fits]
     return np.array(gains), np.array([f.sse_block_c for f in fits])
 
 
-def crossfit_before(s: SelectionSettings, judged: Candidate, fits: list[lsq.Fit], current: lsq.Fit) -> lsq.Fit | None:
-    """What a cross-fitted judgement of ``judged`` tests against (its one null variant, else ``current``); None: the split.
+def crossfit_plan(s: SelectionSettings, judged: Candidate, fits: list[lsq.Fit], current: lsq.Fit):
+    """What a cross-fitted judgement of ``judged`` tests against, ``(before, variants)``; None: the split.
 
-    Cross-fitted (``Effect.crossfit``, ``judge_folds`` of 2 or more) only where both fits are linear
-    in shared columns: no per-run columns, at most one null variant (a nuisance alone; off-peak
-    variants of a per-run fit are weighed against their spread on the split).
+    ``before``: its one null variant (a nuisance alone), else ``current``; ``variants``: three or
+    more off-peak variants of a per-run fit (a tone's phases), tested against their spread. Two
+    variants, or a pair of effects, stay on the split.
     """
-    if len(fits) > 1 or judged.partner is not None:
+    if judged.partner is not None or len(fits) == 2:
         return None
-    before = fits[0] if fits else current
-    return before if crossfit_applies(s, judged.effect, before, judged.fit) else None
+    before, variants = (fits[0], []) if len(fits) == 1 else (current, fits)
+    return (before, variants) if crossfit_applies(s, judged.effect, before, judged.fit, variants) else None
 
 
-def crossfit_applies(s: SelectionSettings, effect, before: lsq.Fit, after: lsq.Fit) -> bool:
-    """Whether ``effect`` is judged cross-fitted between these fits: it asks for it, and both are shared-column fits."""
+def crossfit_applies(s: SelectionSettings, effect, before: lsq.Fit, after: lsq.Fit, variants: list = ()) -> bool:
+    """Whether ``effect`` is judged cross-fitted between these fits.
+
+    It asks for it (``Effect.crossfit``, ``judge_folds`` of 2 or more), and the fits hold the same
+    blocks; per-run columns only where at least three off-peak variants weigh what a per-run fit
+    gains on noise (a per-run fit gains in its own run, held out or not).
+    """
     if not effect.crossfit or s.judge_folds < 2:
         return False
-    grams = [after.grams, getattr(before, "grams", None)]
-    return not any(g is None or g.n_local for g in grams) and len(grams[0].n) == len(grams[1].n)
+    grams = [after.grams, getattr(before, "grams", None), *(getattr(v, "grams", None) for v in variants)]
+    if any(g is None for g in grams) or len({len(g.n) for g in grams}) != 1:
+        return False
+    return not any(g.n_local for g in grams) or len(variants) >= 3
 
 
 def ambiguous(best: Candidate, cands: list[Candidate], level: float, hac: int,

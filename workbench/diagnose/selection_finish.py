@@ -12,7 +12,12 @@ import numpy as np
 
 from workbench.diagnose.chain import Active
 from workbench.diagnose.selection_candidates import peak_grid, prune
-from workbench.diagnose.selection_claims import crossfit_applies, null_correction, telling_blocks
+from workbench.diagnose.selection_claims import (
+    crossfit_applies,
+    telling_blocks,
+    variant_correction,
+    variant_fits,
+)
 from workbench.diagnose.selection_judge import crossfit_judge, judge
 from workbench.diagnose.selection_records import Candidate, SelectionSettings
 from workbench.diagnose.selection_search import parabola, search
@@ -112,10 +117,10 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps,
             rnames = [n for n in names if not n.startswith(a.name + ".")]
             f, after = problem.fit(rest, current.coefs(), rnames), current
             jn = a.effect.judged_as(dict(a.nl))
-            corr = null_sse = telling = None
+            variants, telling = [], None
             if jn is None and len(a.effect.null_variants(dict(a.nl))) >= 3:
                 # a per-run fit (a tone's phases): judged against its off-peak variants, as at its step
-                corr, null_sse = null_correction(problem, a.effect, config, dict(a.nl), names, current.coefs(), f)
+                variants = variant_fits(problem, a.effect, config, dict(a.nl), names, current.coefs())
                 telling = telling_blocks(problem, a.effect, dict(a.nl), after.grams)
             elif jn is not None:
                 # judged as at its step: beside its nuisance, against the nuisance alone
@@ -125,15 +130,16 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps,
                 nulls = a.effect.null_variants(jn)
                 if nulls:
                     f = problem.fit(config.with_effect(Active(a.effect, nulls[0])), current.coefs(), jnames)
-            if corr is None and crossfit_applies(s, a.effect, f, after):
-                # judged cross-fitted, as at its step (selection_claims.crossfit_before)
+            if crossfit_applies(s, a.effect, f, after, variants):
+                # judged cross-fitted, as at its step (selection_claims.crossfit_plan)
                 test, gain = crossfit_judge(f, after, problem.block_folds(after.grams, s.judge_folds), problem.weights,
-                                            hac)
+                                            hac, variants, telling)
             else:
+                corr, null_sse = variant_correction(variants, f)
                 test, gain = judge(f, after, after.grams, hac, corr, null_sse, telling)
             verdicts.append((test["llr"], a, rnames, test, gain))
         llr, a, rnames, test, gain = min(verdicts, key=lambda v: v[0])
-        if test["p"] >= level or gain.max() < s.min_gain:
+        if test["p"] >= level or a.effect.practical_gain(gain).max() < s.min_gain:
             if table is not None:
                 table.append(_dropped_row(
                     a, f"claimed at its step, dropped in the final check: beside the others' final values "

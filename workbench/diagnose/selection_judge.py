@@ -80,7 +80,8 @@ def judge(before: lsq.Fit, after: lsq.Fit, gr: lsq.Grams, hac_lags: int, correct
     return {"t": t, "p": float(stats.t.sf(t, df=max(n - 1, 1))), "llr": float(g.sum()), "n_blocks": n}, gain_c
 
 
-def crossfit_judge(before: lsq.Fit, after: lsq.Fit, fold: np.ndarray, weights: np.ndarray, hac_lags: int):
+def crossfit_judge(before: lsq.Fit, after: lsq.Fit, fold: np.ndarray, weights: np.ndarray, hac_lags: int,
+                   variants: list[lsq.Fit] = (), telling: np.ndarray | None = None):
     """:func:`judge` of ``after`` against ``before`` cross-fitted: each fold's blocks predicted by a fit on the others.
 
     ``fold``: per block, its fold (0: the split's held-out sets, whose blocks keep the fits as
@@ -92,13 +93,24 @@ def crossfit_judge(before: lsq.Fit, after: lsq.Fit, fold: np.ndarray, weights: n
     the clean copy t -4.3 to 0.0 (``benchmarks/diagnose_crosstalk_judge.py``). The returned ``llr`` is the cross-fitted gain scaled to the
     held-out share of the blocks (comparable with the split's gains of the other candidates of
     a step, which the selection ranks by it); ``llr_crossfit`` is the whole gain.
+
+    ``variants``: a per-run fit's off-peak variants (a tone's phase in each run), cross-fitted
+    alike; ``after`` is then tested against their spread run by run over every run, as
+    :func:`judge` does over the held-out ones (``telling``: per block, the runs that can tell the
+    effect). Per-run columns are fitted within their run wherever it falls, so only the shared
+    coefficients change between folds; the variants' in-run gain on the residual's own spectrum is
+    the null either way.
     """
     gr = after.grams
     fold = np.asarray(fold, int)
     every = dataclasses.replace(gr, heldout=np.ones_like(gr.heldout))
-    test, gain_c = judge(types.SimpleNamespace(sse_block_c=crossfit_sse(before, fold, weights, hac_lags)),
-                         types.SimpleNamespace(sse_block_c=crossfit_sse(after, fold, weights, hac_lags)),
-                         every, hac_lags)
+    sb = types.SimpleNamespace(sse_block_c=crossfit_sse(before, fold, weights, hac_lags))
+    corr = null_sse = None
+    if len(variants):
+        null_sse = np.array([crossfit_sse(v, fold, weights, hac_lags) for v in variants])
+        corr = np.array([block_llr(sb, types.SimpleNamespace(sse_block_c=v), gr).sum(axis=1) for v in null_sse])
+    test, gain_c = judge(sb, types.SimpleNamespace(sse_block_c=crossfit_sse(after, fold, weights, hac_lags)),
+                         every, hac_lags, corr, null_sse, telling)
     share = float(np.mean(gr.heldout)) if len(gr.heldout) else 0.0
     folds = int(len(np.unique(fold)))
     return {**test, "llr_crossfit": test["llr"], "llr": test["llr"] * share, "folds": folds}, gain_c

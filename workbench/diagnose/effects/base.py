@@ -368,6 +368,15 @@ class Effect:
         """A structural check of a fitted candidate against the evidence (None: it passes)."""
         return None
 
+    def practical_gain(self, gain_c: np.ndarray) -> np.ndarray:
+        """The held-out gain per channel that the claim's ``min_gain`` is held against.
+
+        By default the share of the whole held-out residual the effect removes. An effect that can
+        only remove part of the residual (a flow tone: nothing that repeats every stroke) may
+        count its gain against that part.
+        """
+        return gain_c
+
     def complete(self, params: dict, stderr: dict, problem, config, residuals: list) -> None:
         """Fill canonical parameters only the final residuals tell (in place); nothing by default."""
 
