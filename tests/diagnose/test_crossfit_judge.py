@@ -17,6 +17,7 @@ import pytest
 
 from workbench.diagnose import lsq
 from workbench.diagnose.data import crossfit_folds, heldout_mask
+from workbench.diagnose.selection_claims import variant_correction
 from workbench.diagnose.selection_judge import crossfit_judge, judge
 
 SETS, RUNS, BLOCKS, TICKS = 24, 4, 4, 60
@@ -184,16 +185,10 @@ def _tone_tests(rng, amplitude: float) -> tuple[float, float]:
 
     none, tone = fitted(None), fitted(F0)
     variants = [fitted(F0 + d) for d in OFFSETS]
-    corr = np.array([block_llr_sum(none, v) for v in variants])
-    split, _ = judge(none, tone, tone.grams, 2, corr, np.array([v.sse_block_c for v in variants]))
+    corr, null_sse = variant_correction(variants, none)
+    split, _ = judge(none, tone, tone.grams, 2, corr, null_sse)
     cv, _ = crossfit_judge(none, tone, fold, w, 2, variants)
     return split["p"], cv["p"]
-
-
-def block_llr_sum(before, after) -> np.ndarray:
-    from workbench.diagnose.selection_judge import block_llr
-
-    return block_llr(before, after, after.grams).sum(axis=1)
 
 
 def test_a_per_run_fit_judged_over_every_run_keeps_its_level_on_noise():

@@ -201,7 +201,7 @@ class FlowUnsteadiness(Effect):
         of the whole (cross-fitted p 1e-8). Taken from the residual of the step's configuration
         (its :meth:`proposals`).
         """
-        share = getattr(self, "_unlocked", None)
+        share = self._unlocked
         if share is None:
             return gain_c
         return gain_c / np.maximum(share, self.MIN_UNLOCKED)
