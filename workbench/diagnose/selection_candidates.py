@@ -148,17 +148,19 @@ def _prune_one(s: SelectionSettings, problem, cand: Candidate, e: Effect) -> Can
     zc = stats.norm.isf(s.prune_alpha / (2 * max(len(own), 1)))
     keep = list(own)
     gr = cand.fit.grams
-    # backward elimination: drop the weakest entry and refit until every entry left is significant;
-    # an entry outside its plausible range whose column is nearly that of a plausible entry in
-    # the same channel is that entry's alias (tz = 0.02 fy makes x_fz_tz = 1.5 read as x_fz_fy =
-    # 0.03) and goes first, whatever its z
+    # backward elimination: drop the weakest entry and refit until every entry left is significant.
+    # An entry outside its plausible range goes first, whatever its z: an alias of a plausible entry
+    # in the same channel first (tz = 0.02 fy makes x_fz_tz = 1.5 read as x_fz_fy = 0.03), then the
+    # most implausible (a load cell does not read 138 % of another channel: beside a 3 % ty-from-fy
+    # crosstalk the misfit guard's ty residual is 0.03 fy, so x_fz_fy's guarded column is what little
+    # of fy that residual does not follow, and it read 1.38 with the FED-LSTM as base)
     while len(keep) > 1:
         names = [n for n in cand.names if n not in own] + keep
         f = lsq.fit(gr.subset(names), problem.weights, problem.settings.hac_lags)
         co, se = f.coefs(), f.stderr()
-        alias = _implausible_alias(e, gr, keep, co)
-        if alias is not None:
-            keep.remove(alias)
+        bad = _implausible_alias(e, gr, keep, co) or _most_implausible(e, keep, co)
+        if bad is not None:
+            keep.remove(bad)
             continue
         z = {n: abs(co[n]) / se[n] if se[n] > 0 else 0.0 for n in keep}
         weakest = min(keep, key=z.get)
@@ -175,6 +177,22 @@ def _prune_one(s: SelectionSettings, problem, cand: Candidate, e: Effect) -> Can
                      cand.ok, cand.note, cand.partner)
 
 
+def _outside(e: Effect, n: str, coefs: dict) -> float:
+    """How far entry ``n`` (qualified) lies outside ``e``'s plausible range: |value| / the range's reach (0: inside)."""
+    short = n.split(".", 1)[1]
+    if not e.implausible({short: coefs[n]}):
+        return 0.0
+    rng = e.ranges.get(short) or next((r for pat, r in e.ranges.items()
+                                        if pat.endswith("*") and short.startswith(pat[:-1])), (0.0, 0.0))
+    return abs(coefs[n]) / max(abs(rng[0]), abs(rng[1]), 1e-300)
+
+
+def _most_implausible(e: Effect, keep: list[str], coefs: dict) -> str | None:
+    """The entry of ``keep`` furthest outside its plausible range (None: all plausible)."""
+    far = max(keep, key=lambda n: _outside(e, n, coefs), default=None)
+    return far if far is not None and _outside(e, far, coefs) > 0 else None
+
+
 def _implausible_alias(e: Effect, gr: lsq.Grams, keep: list[str], coefs: dict, collinear: float = 0.95) -> str | None:
     """The most implausible of ``keep`` (qualified names of ``e``'s entries) that aliases a plausible one.
 
@@ -183,12 +201,7 @@ def _implausible_alias(e: Effect, gr: lsq.Grams, keep: list[str], coefs: dict, c
     physics, the other reads the same signal through a proportional source.
     """
     def outside(n: str) -> float:
-        short = n.split(".", 1)[1]
-        if not e.implausible({short: coefs[n]}):
-            return 0.0
-        rng = e.ranges.get(short) or next((r for pat, r in e.ranges.items()
-                                            if pat.endswith("*") and short.startswith(pat[:-1])), (0.0, 0.0))
-        return abs(coefs[n]) / max(abs(rng[0]), abs(rng[1]), 1e-300)
+        return _outside(e, n, coefs)
 
     bad = sorted((n for n in keep if outside(n) > 0), key=outside, reverse=True)
     if not bad:
