@@ -182,8 +182,7 @@ def _outside(e: Effect, n: str, coefs: dict) -> float:
     short = n.split(".", 1)[1]
     if not e.implausible({short: coefs[n]}):
         return 0.0
-    rng = e.ranges.get(short) or next((r for pat, r in e.ranges.items()
-                                        if pat.endswith("*") and short.startswith(pat[:-1])), (0.0, 0.0))
+    rng = e.range_of(short)  # not None: an implausible value has a range
     return abs(coefs[n]) / max(abs(rng[0]), abs(rng[1]), 1e-300)
 
 

@@ -263,11 +263,15 @@ class Effect:
               for k in params}
         return params, se
 
+    def range_of(self, name: str) -> tuple[float, float] | None:
+        """The plausible range of canonical parameter ``name`` (a ``ranges`` key, or a ``prefix*`` pattern); None: any."""
+        return self.ranges.get(name) or next((r for pat, r in self.ranges.items()
+                                              if pat.endswith("*") and name.startswith(pat[:-1])), None)
+
     def implausible(self, params: dict) -> str | None:
         """Why the fitted canonical parameters are not this effect (None when they are plausible)."""
         for k, v in params.items():
-            rng = self.ranges.get(k) or next((r for pat, r in self.ranges.items()
-                                              if pat.endswith("*") and k.startswith(pat[:-1])), None)
+            rng = self.range_of(k)
             if rng and v is not None and np.isfinite(v) and not rng[0] <= v <= rng[1]:
                 return f"{k} = {v:.3g} is outside the plausible range [{rng[0]:g}, {rng[1]:g}]"
         return None
