@@ -301,21 +301,21 @@ def _roll_forward(folder: Path, journal: Path) -> None:
     except (OSError, ValueError, KeyError, TypeError):
         journal.unlink(missing_ok=True)  # never whole (it is renamed into place): nothing was committed
         return
+    olds = []  # removed only once every name holds the new set: the mixed moment is the renames alone
     for name, part in dirs.items():  # a folder: the old one moves aside, the new one in (part: always the new)
         src, dst = folder / part, folder / name
         if "/" in name or "/" in part or not src.is_dir():
             continue
-        old = None
         if os.path.lexists(dst):
-            old = _tmp_name(dst, "old")
-            os.replace(dst, old)
+            olds.append(_tmp_name(dst, "old"))
+            os.replace(dst, olds[-1])
         os.replace(src, dst)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
     for name, tmp in moves.items():
         src = folder / tmp
         if os.path.lexists(src) and "/" not in name and "/" not in tmp:
             os.replace(src, folder / name)
+    for old in olds:
+        shutil.rmtree(old, ignore_errors=True)
     if doc.get("record"):
         name, text = doc["record"]
         tmp = _tmp_name(folder / name, "tmp")

@@ -36,7 +36,7 @@ import pytest
 from faults_helpers import ROOT, kill_after, leftovers
 from proctree import project_env, small_parquet, tiny_learn_config
 
-from workbench.atomic import MARKER, may_replace, read_marker
+from workbench.atomic import MARKER, may_replace, read_marker, sweep
 
 pytestmark = [pytest.mark.faults, pytest.mark.slow]
 
@@ -86,6 +86,26 @@ def _kill_when_writing(env: dict, cwd: Path, watch: list[Path], *args: str) -> b
             proc.wait()
 
 
+def _state_after_kill(state, watch: list[Path]) -> str:
+    """``state()`` after a kill; a mixed set is allowed only inside a committed set's renames.
+
+    A set of files in a shared folder (``atomic_files``) is committed by a journal and then renamed
+    file by file; a kill inside those renames (microseconds) leaves the journal of a dead writer, and
+    the next write into the folder completes it (docs/data-outputs.md). Then, and only then, the
+    folder may hold two runs' files: the sweep any next write does must make it the new set, whole.
+    """
+    try:
+        return state()
+    except Exception:  # noqa: BLE001 - whatever the mixed set broke; re-raised unless a journal explains it
+        journals = [p for folder in watch for p in leftovers(folder) if p.endswith(".set")]
+        if not journals:
+            raise
+    for folder in watch:
+        sweep(folder)
+    assert not [p for folder in watch for p in leftovers(folder) if p.endswith(".set")]
+    return state()
+
+
 def _visible_temporaries(folder: Path) -> list[str]:
     """Anything under ``folder``, outside hidden entries, named like a temporary or a partial write."""
     if not folder.is_dir():
@@ -127,7 +147,7 @@ def kill_cycle(name: str, tmp: Path, runs: dict[str, tuple[str, ...]], state, wa
     for delay in _moments(name, full, kills):
         other = "b" if state() == "a" else "a"
         rc = kill_after(delay, *runs[other], env=env, cwd=tmp)
-        got = state()
+        got = _state_after_kill(state, watch)
         if rc is not None:
             assert rc == 0 and got == other, f"{name}: ended with {rc} before the kill, set {got!r}"
         left = [p for folder in watch for p in leftovers(folder)]
@@ -138,7 +158,7 @@ def kill_cycle(name: str, tmp: Path, runs: dict[str, tuple[str, ...]], state, wa
     # and once at the first sight of its temporaries: inside the writing, whatever the machine's load
     other = "b" if state() == "a" else "a"
     caught = _kill_when_writing(env, tmp, watch, *runs[other])
-    assert state() in ("a", "b") and (caught or state() == other)
+    assert _state_after_kill(state, watch) in ("a", "b") and (caught or state() == other)
     _run(env, tmp, *runs["a"])
     assert state() == "a"
     for folder in watch:
