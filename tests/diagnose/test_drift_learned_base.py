@@ -102,6 +102,56 @@ def test_the_drift_column_carries_no_run_level_and_nothing_on_the_unsettled_ends
     assert not np.any(null.cols[2]) and len(null.local) == len(judged.local)
 
 
+def _batch(flows, rate, trend_per_mps, heldout=False, seed=0):
+    """Runs at ``flows`` whose fz reads ``rate t`` plus a base misfit trending at ``trend_per_mps * U`` per s.
+
+    Beside them each run's level and a 2 Hz stroke-locked waveform of random phase, and white noise.
+    """
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(-1.0, 12.0, 1 / 64)
+    fit = (t >= 0.5) & (t <= t[-1] - 0.5)
+    n = len(flows)
+    y = np.zeros((n, len(t), 6))
+    for i, u in enumerate(flows):
+        w = 2 * np.pi * 2.0 * t + rng.uniform(0, 2 * np.pi)
+        y[i, :, 2] = (0.01 * np.sin(w) + 0.02 * rng.standard_normal() + rate * np.clip(t, 0, None)
+                      + trend_per_mps * u * t + 0.001 * rng.standard_normal(len(t)))
+    return SimpleNamespace(time_s=np.tile(t, (n, 1)), y=y, fit=np.tile(fit, (n, 1)), freq=np.full(n, 2.0),
+                           valid=np.ones((n, len(t)), bool), flow=np.asarray(flows, float), heldout=heldout)
+
+
+def _rate(eff, rs):
+    from types import SimpleNamespace
+
+    terms = eff.sensor_terms(SimpleNamespace(time_s=rs.time_s, rs=rs), {}, np.zeros_like(rs.y))
+    col = terms.cols[2][..., 2]
+    m = rs.fit
+    return float(np.sum(col[m] * rs.y[..., 2][m]) / np.sum(col[m] * col[m])), terms
+
+
+def test_a_base_models_trend_that_grows_with_flow_speed_is_not_read_as_drift():
+    """Drift 1 mN/s, plus a misfit trend of -4 mN/s per m/s: the still-water runs and the flow's scaling tell them apart."""
+    from workbench.diagnose.effects.drift import SensorDrift
+
+    rate, trend = 0.001, -0.004
+    flows = [0.0, 0.0, 0.12, 0.12, 0.25, 0.25, 0.0, 0.12, 0.25]
+    rs = _batch(flows, rate, trend)
+    got, terms = _rate(SensorDrift(), rs)
+    assert got == pytest.approx(rate, rel=0.1)
+    plain, _ = _rate(SensorDrift(flow_degree=0), rs)
+    mean_u = np.mean(flows)
+    assert plain == pytest.approx(rate + trend * mean_u, rel=0.2)       # what the plain column read: 47 % low
+    # the model still predicts rate * t in every run
+    assert np.array_equal(terms.predict["rate_fz_n_per_s"][4, :, 2], np.clip(rs.time_s[4], 0, None))
+    # held-out runs, and a campaign at one flow speed (trend and drift cannot be told apart), keep the plain column
+    held = _batch(flows, rate, trend, heldout=True)
+    assert _rate(SensorDrift(), held)[0] == pytest.approx(_rate(SensorDrift(flow_degree=0), held)[0])
+    one = _batch([0.2] * 6, rate, trend)
+    assert _rate(SensorDrift(), one)[0] == pytest.approx(_rate(SensorDrift(flow_degree=0), one)[0])
+
+
 # ----------------------------------------------------------------------------- slow: the FED-LSTM
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
