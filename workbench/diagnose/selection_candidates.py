@@ -199,10 +199,8 @@ def _implausible_alias(e: Effect, gr: lsq.Grams, keep: list[str], coefs: dict, c
     at least ``collinear`` over the training blocks); only the plausible one of the two is
     physics, the other reads the same signal through a proportional source.
     """
-    def outside(n: str) -> float:
-        return _outside(e, n, coefs)
-
-    bad = sorted((n for n in keep if outside(n) > 0), key=outside, reverse=True)
+    reach = {n: _outside(e, n, coefs) for n in keep}
+    bad = sorted((n for n in keep if reach[n] > 0), key=reach.get, reverse=True)
     if not bad:
         return None
     pos = {n: i for i, n in enumerate(gr.names)}
@@ -215,7 +213,7 @@ def _implausible_alias(e: Effect, gr: lsq.Grams, keep: list[str], coefs: dict, c
             g = gr.G[c][train].sum(axis=0)
             i = cols.index(pos[n])
             for m in keep:
-                if m == n or outside(m) > 0 or pos[m] not in cols:
+                if m == n or reach[m] > 0 or pos[m] not in cols:
                     continue
                 j = cols.index(pos[m])
                 if abs(g[i, j]) >= collinear * np.sqrt(max(g[i, i] * g[j, j], 1e-300)):
