@@ -70,19 +70,25 @@ def test_planted_effect_is_named_measured_and_removed(case, bench):
     assert np.isfinite(r["seconds"])
 
 
-def test_without_reference_the_ef_names_a_servo_dead_time_beside_the_force_library(bench):
-    """No reference, the EF as base: a 60 ms dead time (measured: tau_s 0.0627 s, 97 % removed).
+def test_without_reference_the_ef_names_a_servo_dead_time_and_a_drift_beside_the_force_library(bench):
+    """No reference, the EF as base: a 60 ms dead time with a 1.5 mN/s fz drift beside it.
 
-    It was missed while the servo was a first-order lag only: three force effects took the
-    delay's misfit and then nothing was significant (held-out error -265 % of the planted).
-    The 10 + 40 ms command-log servo (named, tau 24 % low) and the 25 ms dead time (11 ms) are
-    not held here: docs/diagnose.md section 7.
+    Measured (30 Nov 2026): tau_s 4.7 % off, the drift 0.7 %, 98 % of the planted error removed, no
+    extra claim. The dead time was missed while the servo was a first-order lag only (three force
+    effects took the delay's misfit, then nothing was significant: held-out error -265 % of the
+    planted), and the drift beside it was never found while a delay chosen early was held where the
+    force effects' misfit had put it (``SelectionSettings.follow_lookahead``; ``test_servo_noref.py``
+    holds the 25 and 40 ms dead times). One diagnosis holds both: the dead time alone adds nothing
+    the pair does not test (it was its own 90-second diagnosis until 30 Nov 2026).
     """
-    r = bench.run(battery.case("servo_dead_60ms"), "ef", False)
-    assert r["hits"]["servo_lag"] == "servo_lag", (r["named"], r["params"])
+    r = bench.run(battery.pair("servo_dead_60ms", "drift_fz_1.5mN_per_s"), "ef", False)
+    assert r["hits"] == {"servo_lag": "servo_lag", "sensor_drift": "sensor_drift"}, (r["named"], r["params"])
     assert r["param_err"]["servo_lag.tau_s"] <= 0.2, r["params"]
-    assert r["removed_share"] is None or r["removed_share"] >= 0.7, r
+    assert r["param_err"]["sensor_drift.rate_fz_n_per_s"] <= 0.2, r["params"]
+    assert r["removed_share"] is not None and r["removed_share"] >= 0.7, r
     assert len(r["extra"]) <= 1, r["extra"]
+    # a delay is not a heavily damped mode
+    assert "structural_resonance" not in r["named"], r["named"]
 
 
 def test_fed_lstm_base_names_a_dead_time_as_servo_lag_not_a_resonance(bench):
