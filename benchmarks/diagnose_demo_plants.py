@@ -11,6 +11,7 @@ claim is an extra claim):
     .venv/bin/python benchmarks/diagnose_demo_plants.py                       # EF, every case
     .venv/bin/python benchmarks/diagnose_demo_plants.py --cases clean,xt_fz_fy_5pc --max-runs 0
     .venv/bin/python benchmarks/diagnose_demo_plants.py --model datasets/models/fed-lstm
+    .venv/bin/python benchmarks/diagnose_demo_plants.py --params my-diagnose.yaml      # other settings
 
 Copies and outputs go under build/bench/demo-plants (gitignored); a copy is planted once and reused.
 Two to eight minutes a case on two cores (192 runs are ingested each time). Measured 29 Nov 2026
@@ -82,6 +83,8 @@ def main() -> int:
     ap.add_argument("--cases", default=DEFAULT_CASES, help="comma-separated case names; 'clean' is the unplanted copy")
     ap.add_argument("--campaign", default=str(ROOT / "datasets" / "raw" / "demo-tunnel"), help="the campaign copied")
     ap.add_argument("--max-runs", type=int, help="passed on to the command (default: the project's pipeline file)")
+    ap.add_argument("--params", metavar="YAML", help="passed on to the command: a parameter file with a 'diagnose' "
+                    "section (default: the project's pipelines/diagnose.yaml); outputs are tagged with its name")
     ap.add_argument("--root", default=str(ROOT / "build" / "bench" / "demo-plants"))
     ap.add_argument("--json", metavar="FILE", help="also write every result as JSON")
     args = ap.parse_args()
@@ -91,6 +94,8 @@ def main() -> int:
     lookup, root = _cases(), Path(args.root)
     root.mkdir(parents=True, exist_ok=True)
     tag = "all" if args.max_runs == 0 else str(args.max_runs or "default")
+    if args.params:
+        tag += "-" + Path(args.params).stem
     results, clean = {}, None
     for name in args.cases.split(","):
         case = lookup(name)
@@ -102,6 +107,8 @@ def main() -> int:
                "--model", args.model, "--out", str(out), "--no-mlflow"]
         if args.max_runs is not None:
             cmd += ["--max-runs", str(args.max_runs)]
+        if args.params:
+            cmd += ["--params", str(Path(args.params).resolve())]
         t0 = time.time()
         proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
         if proc.returncode:
