@@ -197,7 +197,7 @@ def _enforce_claims(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
                                             "max_gain": max(worst.heldout_mse_reduction_by_channel.values(),
                                                             default=0.0), "ok": False,
                                             "note": f"dropped after the final fit: {faults[worst.name]}"}]
-        result = type(result)(config, names, fit, steps, table)
+        result = type(result)(config, names, fit, steps, table, result.left_at_budget, result.budget_spent)
 
 
 _AT_REST = {"still": "the rig's own: a pump, a fan, a mount; it is there in still water",

@@ -93,6 +93,17 @@ class Diagnosis:
     profiles: dict = field(default_factory=dict)
     #: what was learned on the reference campaign (``--reference``), None without one
     reference: dict | None = None
+    #: selection-record rows of candidates still acceptable when the round budget ran out (empty: converged)
+    left_at_budget: list[dict] = field(default_factory=list)
+
+    def unfinished(self) -> str | None:
+        """One sentence when the selection ran out of rounds with acceptable candidates left (None: it stopped by itself)."""
+        if not self.left_at_budget:
+            return None
+        left = ", ".join(f"{r['label']} (t {r['t']:.1f})" for r in self.left_at_budget)
+        return (f"the selection stopped at its budget of {self.settings.selection.max_effects} rounds with "
+                f"{len(self.left_at_budget)} acceptable candidate(s) left: {left}; it did not converge "
+                "(raise selection.max_effects to go on)")
 
     def mse_after_corrected(self) -> dict[str, float] | None:
         """Held-out MSE against the readings corrected by the claimed sensor-side effects (None: none, or one not invertible).
@@ -129,6 +140,11 @@ class Diagnosis:
             + [{"step": len(self.steps) + 1, "candidates": self.final_table, "stopped": True}],
             "runtime_s": round(self.runtime_s, 2),
             **({"reference": self.reference} if self.reference else {}),
+            **({"selection_budget": {
+                "max_effects": self.settings.selection.max_effects, "converged": False,
+                "acceptable_left": [{k: r[k] for k in ("effect", "label", "t", "p", "max_gain") if k in r}
+                                    for r in self.left_at_budget],
+                "note": self.unfinished()}} if self.left_at_budget else {}),
         }
 
 

@@ -199,6 +199,9 @@ def markdown(d, figures: dict[str, str], truth: dict | None = None) -> str:
     j = d.to_json()
     lines = _error_table(d)
     lines += ["", "## Effects claimed (best first)", ""]
+    unfinished = d.unfinished() if hasattr(d, "unfinished") else None
+    if unfinished:
+        lines += [f"**Not converged:** {unfinished}.", ""]
     if not d.effects:
         lines.append("None: no candidate beat the noise on held-out runs.")
     for e in d.effects:

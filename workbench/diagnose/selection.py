@@ -61,6 +61,8 @@ class _Path:
     last_nl: dict
     rounds: int = 0
     branches: list = field(default_factory=list)
+    #: whether the round budget (``max_effects``) ran out before the path stopped by itself
+    budget_spent: bool = False
 
     def copy(self) -> "_Path":
         """An independent copy (fits are shared: they are not changed in place)."""
@@ -122,6 +124,8 @@ class StepwiseSelection:
                 seeded = e.seed(problem, result.config)
                 if seeded is not None:
                     result = self._better(problem, result, self._seeded(problem, start, e, *seeded, plausible), more)
+        if result.budget_spent:
+            result.left_at_budget = self._left(problem, library, result, peaks_of, plausible, progress)
         return result
 
     def _better(self, problem, result: SelectionResult, path: "_Path | None", more: tuple) -> SelectionResult:
@@ -182,7 +186,26 @@ class StepwiseSelection:
             rivals = ambiguous(best, cands, level, hac, s.alpha)
             self._accept(problem, path, best, table, alternatives, rivals)
             self._follow(problem, path, mine)
+        else:
+            path.budget_spent = True
         return path
+
+    def _left(self, problem, library, result: SelectionResult, peaks_of, plausible, progress) -> list[dict]:
+        """Rows of candidates still acceptable beside the final claims: one more round, judged only.
+
+        Run when the round budget (``max_effects``) ran out: a greedy selection cut off by its
+        budget has not converged, and what it would still claim is recorded (and reported beside
+        the claims), not silently dropped.
+        """
+        config, names, current = result.config, result.names, result.fit
+        coefs = current.coefs()
+        remaining = [e for e in library if e.name not in config.names()]
+        last_nl = {a.name: dict(a.nl) for a in config.actives}
+        cands = candidates(self.settings, problem, config, coefs, names, remaining, current, peaks_of, last_nl, progress)
+        if not cands:
+            return []
+        _, table, _ = judge_all(self.settings, problem, cands, coefs, current, config, plausible)
+        return [dict(row) for row in table if row.get("ok")]
 
     def _held(self, problem, cands, table, coefs, current, config, level, plausible) -> Candidate | None:
         """When no candidate can be claimed: the best refused one with its amplitudes past a zero bound held there.
@@ -304,6 +327,7 @@ class StepwiseSelection:
         """
         config, names, current = path.config, path.names, path.current
         steps, table = list(path.steps), path.table
+        spent = path.budget_spent
         if self.settings.refine and any(a.effect.search for a in config.actives):
             before = config.nl_values()
             config, current = refine(self.settings, problem, config, path.coefs, names, current)
@@ -319,6 +343,7 @@ class StepwiseSelection:
                 go = self._forward(problem, more[0], go, *more[1:])
                 if len(go.config.actives) > len(config.actives):
                     config, names, current, steps, table = go.config, go.names, go.current, go.steps, go.table
+                    spent = go.budget_spent
                     config, current = refine(self.settings, problem, config, current.coefs(), names, current)
                     config, names, current, steps, table = drop_refused(self.settings, problem, config, names, current, steps, table)
         names, current, change = settle(self.settings, problem, config, names, current, tol=SETTLE_TOL)
@@ -328,7 +353,7 @@ class StepwiseSelection:
                               "ok": False, "note": f"crosstalk/drift entries did not settle: last change {change:.2g}"}]
         table = list(table)
         config, names, current, steps = backward_check(self.settings, problem, config, names, current, steps, table)
-        return SelectionResult(config, names, current, steps, table)
+        return SelectionResult(config, names, current, steps, table, budget_spent=spent)
 
     @staticmethod
     def _sample(problem) -> tuple[np.ndarray, np.ndarray]:

@@ -121,6 +121,11 @@ class SelectionResult:
     fit: lsq.Fit
     steps: list[Step]
     last_table: list[dict]
+    #: the selection-record rows of candidates still acceptable when the round budget (``max_effects``) ran
+    #: out, judged in one more round that claims nothing; empty when the selection stopped by itself
+    left_at_budget: list[dict] = field(default_factory=list)
+    #: whether the round budget ran out before the selection stopped by itself
+    budget_spent: bool = False
 
 
 def record_row(c: Candidate) -> dict:
