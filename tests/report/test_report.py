@@ -43,6 +43,22 @@ def test_report_ties_results_together(tmp_path):
     # objectives named per task, with units
     assert "-Y impulse f1 (N s)" in md and "time to 2 m f3 (s)" in md and "path length f1" not in md
     assert "No trial scores yet." in md and "No drag fit yet." in md
+    assert "Not converged" not in md
+
+
+def test_report_says_when_a_diagnosis_ran_out_of_rounds(tmp_path):
+    ds = tmp_path / "datasets"
+    _fake_results(ds)
+    path = ds / "diagnosis/demo-tunnel-ef/diagnosis.json"
+    doc = json.loads(path.read_text())
+    doc["selection_budget"] = {"max_effects": 8, "converged": False, "acceptable_left": [
+        {"effect": "link_weight_buoyancy", "label": "link_weight_buoyancy", "t": 19.1, "p": 1e-9, "max_gain": 0.03}],
+        "note": "the selection stopped at its budget of 8 rounds with 1 acceptable candidate(s) left: "
+                "link_weight_buoyancy (t 19.1)"}
+    _write(path, doc)
+    md = report.render_markdown(report.collect(ds, with_mlflow=False), tmp_path / "out")
+    assert "**Not converged:** the selection stopped at its budget of 8 rounds" in md
+    assert "link_weight_buoyancy (t 19.1)" in md
 
 
 def test_report_verb_writes_html_and_markdown(tmp_path):

@@ -29,6 +29,9 @@ def diagnosis_section(datasets: Path) -> Section:
         if eff_rows:
             sec.tables.append(("Effects added (best first)",
                                ["effect", "channels", "parameters", "held-out MSE reduction", "evidence"], eff_rows))
+        budget = doc.get("selection_budget") or {}
+        if budget.get("converged") is False and budget.get("note"):
+            sec.paragraphs.append(f"**Not converged:** {budget['note']}.")
         for u in doc.get("unexplained", []) or []:
             sec.paragraphs.append(f"**Unexplained ({u.get('kind', '?')})** in {', '.join(u.get('channels', []))}"
                                   + (f" at {fmt(u.get('frequency_hz'), 2)} Hz" if u.get("frequency_hz") else "")
