@@ -301,8 +301,16 @@ def score(c: Case, d, clean) -> dict:
             "unexplained": [(u.kind, u.channels, None if u.frequency_hz is None else round(u.frequency_hz, 2))
                             for u in d.unexplained],
             "ambiguous": {e.name: e.ambiguous_with for e in d.effects if e.ambiguous_with},
+            # acceptable candidates left when the selection's round budget ran out (empty: it converged)
+            "left_at_budget": [r["effect"] for r in getattr(d, "left_at_budget", [])],
             "params": {e.name: {k: (round(v, 5) if isinstance(v, float) else v) for k, v in e.params.items()}
                        for e in d.effects}}
+
+
+def _budget_note(r: dict) -> str:
+    """' (not converged: X, Y left)' when the case's selection ran out of rounds with acceptable candidates left."""
+    left = r.get("left_at_budget") or []
+    return f" (not converged: {', '.join(left)} left)" if left else ""
 
 
 def _share(b, a, cb, ca, hit) -> float | None:
@@ -325,7 +333,7 @@ def table(results: list[dict], title: str) -> str:
         if r.get("removed_share_corrected") is not None and r.get("removed_share_output") is not None:
             sh += f" (output {r['removed_share_output']:.0%}, corrected {r['removed_share_corrected']:.0%})"
         lines.append(f"| {r['case']} | {hits} | {pe or '-'} | {sh} | {r['lines_ok'] or '-'} | "
-                     f"{', '.join(r['extra']) or '-'} | {r['seconds']:.0f} |")
+                     f"{', '.join(r['extra']) or '-'}{_budget_note(r)} | {r['seconds']:.0f} |")
     planted = [v for r in results for v in r["hits"].values()]
     named = sum(v is not None for v in planted)
     perr = [v for r in results for v in r["param_err"].values()]
