@@ -166,9 +166,6 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
     say(f"{len(result.config.actives)} effect(s) claimed; errors and intervals")
     mse_before = _heldout_mse(res_before)
     result, effects = _enforce_claims(problem, result, base_fit, mse_before, ev_before, s, say)
-    if result.left_at_budget:
-        say(f"warning: {len(result.left_at_budget)} acceptable candidate(s) left when the round budget "
-            f"(selection.max_effects = {s.selection.max_effects}) ran out: the selection did not converge")
     final, config = result.fit, result.config
     res_after = run_residuals(problem, config, final)
     ev_after = analyse(res_after, s.evidence, cutoff, model_force=[r.predicted for r in res_after],

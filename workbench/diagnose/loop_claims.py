@@ -9,6 +9,7 @@ listed (:func:`_unexplained`).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable
 
 import numpy as np
@@ -197,7 +198,7 @@ def _enforce_claims(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
                                             "max_gain": max(worst.heldout_mse_reduction_by_channel.values(),
                                                             default=0.0), "ok": False,
                                             "note": f"dropped after the final fit: {faults[worst.name]}"}]
-        result = type(result)(config, names, fit, steps, table, result.left_at_budget, result.budget_spent)
+        result = dataclasses.replace(result, config=config, names=names, fit=fit, steps=steps, last_table=table)
 
 
 _AT_REST = {"still": "the rig's own: a pump, a fan, a mount; it is there in still water",

@@ -199,7 +199,7 @@ def markdown(d, figures: dict[str, str], truth: dict | None = None) -> str:
     j = d.to_json()
     lines = _error_table(d)
     lines += ["", "## Effects claimed (best first)", ""]
-    unfinished = d.unfinished() if hasattr(d, "unfinished") else None
+    unfinished = d.unfinished()
     if unfinished:
         lines += [f"**Not converged:** {unfinished}.", ""]
     if not d.effects:
