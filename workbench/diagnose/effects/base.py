@@ -160,6 +160,11 @@ class Effect:
     #: it is acceptable at a step but another effect wins, the selection also follows the path that
     #: takes it there (a force effect taken first absorbs its misfit channel by channel)
     lookahead: bool = False
+    #: the effect's searched values set the phase of the whole prediction (a delay, a low-pass mode): two
+    #: such effects trade off (below a mode, its damping's phase is a delay's), so the final check judges
+    #: each against the others' values searched again without it (a profile likelihood), not held at the
+    #: values they took beside it
+    timing: bool = False
     #: judged cross-fitted (``SelectionSettings.judge_folds``): every parameter set held out once, not only the
     #: split's. For an effect whose judgement competes with a base model's misfit that differs from set to set
     #: (a crosstalk beside a learned model's misfit), where a few held-out sets decide by their luck

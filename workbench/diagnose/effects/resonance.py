@@ -137,6 +137,7 @@ class StructuralResonance(Effect):
     ranges = {"f_n_hz": (0.7, 12.0), "zeta": (0.01, 1.0)}
     stage = "filter"
     physical = False
+    timing = True
     formula = "W_read = W wn^2 / (s^2 + 2 zeta wn s + wn^2), wn = 2 pi f_n_hz"
     # a scan in frequency at moderate damping (a sharp mode is missed between coarse points), then a
     # 2-D refinement of frequency and damping from the best point

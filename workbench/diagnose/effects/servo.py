@@ -83,6 +83,7 @@ class ServoLag(Effect):
     search = (TAU, SHARE)
     surrogate_ok = True
     lookahead = True
+    timing = True
     #: the split of tau_s between dead time and lag locates the servo's shape, it does not measure its size
     location_params = ("dead_share", "dead_s", "lag_s")
 
