@@ -60,6 +60,8 @@ def test_the_lag_a_low_damping_needs_is_dropped_and_the_mode_searched_again(held
     # the mode keeps the values searched without the lag: the planted damping (measured 0.0800, f_n 4.494 Hz)
     assert res["zeta"] == pytest.approx(ZETA, rel=0.1) and res["f_n_hz"] == pytest.approx(F_N, rel=0.02)
     assert len(table) == 1 and table[0]["effect"] == "servo_lag" and "dropped in the final check" in table[0]["note"]
+    # the record says the mode moved in its place
+    assert "structural_resonance.zeta 0.035 -> 0.08" in table[0]["note"] and "trade off" in table[0]["note"], table[0]["note"]
 
 
 def test_held_at_its_values_the_mode_keeps_the_lag(held, monkeypatch):

@@ -122,6 +122,14 @@ def profiled(s: SelectionSettings, problem, config, a: Active, coefs: dict, rnam
     return rest
 
 
+def _moved(config, rest) -> str:
+    """The partners' values the profile moved, for a dropped effect's row ('' when none moved)."""
+    was = config.nl_values()
+    moved = [f"{k} {was[k]:.3g} -> {v:.3g}" for k, v in rest.nl_values().items()
+             if k in was and abs(v - was[k]) > 1e-9 * max(abs(was[k]), 1.0)]
+    return f" (searched again without it: {', '.join(moved)}; they trade off)" if moved else ""
+
+
 def backward_check(s: SelectionSettings, problem, config, names, current, steps, table: list | None = None):
     """Drop effects that no longer earn their place once the others are final (collinear partners).
 
@@ -165,8 +173,8 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps,
         if test["p"] >= level or a.effect.practical_gain(gain).max() < s.min_gain:
             if table is not None:
                 table.append(_dropped_row(
-                    a, f"claimed at its step, dropped in the final check: beside the others' final values "
-                       f"p={test['p']:.2g} (level {level:.2g}), held-out gain {gain.max():.1%}",
+                    a, f"claimed at its step, dropped in the final check: beside the others' final values"
+                       f"{_moved(config, rest)} p={test['p']:.2g} (level {level:.2g}), held-out gain {gain.max():.1%}",
                     test, float(gain.max()), digits=4))
             # the partners keep the values searched without it (the profile the test was judged on)
             config = rest
