@@ -302,7 +302,7 @@ def score(c: Case, d, clean) -> dict:
                             for u in d.unexplained],
             "ambiguous": {e.name: e.ambiguous_with for e in d.effects if e.ambiguous_with},
             # acceptable candidates left when the selection's round budget ran out (empty: it converged)
-            "left_at_budget": [r["effect"] for r in getattr(d, "left_at_budget", [])],
+            "left_at_budget": [r["effect"] for r in d.left_at_budget],
             "params": {e.name: {k: (round(v, 5) if isinstance(v, float) else v) for k, v in e.params.items()}
                        for e in d.effects}}
 

@@ -24,7 +24,7 @@ from workbench.diagnose.problem import FitSettings, Problem, _reverses
 FIXED = {"a.x": 0.7, "b.y": -0.3}
 
 
-def _problem(monkeypatch, gain: float, damped_passes: int = 8):
+def _problem(monkeypatch, gain: float):
     """``Problem.fit`` on a stand-in whose every pass maps the coefficients c to c* + gain (c - c*)."""
     calls = []
 
@@ -38,7 +38,7 @@ def _problem(monkeypatch, gain: float, damped_passes: int = 8):
 
     monkeypatch.setattr(problem_mod, "_reads_prediction", lambda config: True)
     monkeypatch.setattr(problem_mod.lsq, "fit", fit)
-    stub = SimpleNamespace(settings=FitSettings(passes=3, damped_passes=damped_passes), weights=np.ones(6),
+    stub = SimpleNamespace(settings=FitSettings(passes=3, damped_passes=8), weights=np.ones(6),
                            grams=grams)
     config = SimpleNamespace(actives=[])
     return (lambda start: Problem.fit(stub, config, start)), calls
