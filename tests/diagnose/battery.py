@@ -303,6 +303,8 @@ def score(c: Case, d, clean) -> dict:
             "ambiguous": {e.name: e.ambiguous_with for e in d.effects if e.ambiguous_with},
             # acceptable candidates left when the selection's round budget ran out (empty: it converged)
             "left_at_budget": [r["effect"] for r in d.left_at_budget],
+            # fits whose fixed point was not reached (empty: all settled)
+            "unsettled": list(d.unsettled),
             "params": {e.name: {k: (round(v, 5) if isinstance(v, float) else v) for k, v in e.params.items()}
                        for e in d.effects}}
 
@@ -310,7 +312,8 @@ def score(c: Case, d, clean) -> dict:
 def _budget_note(r: dict) -> str:
     """' (not converged: X, Y left)' when the case's selection ran out of rounds with acceptable candidates left."""
     left = r.get("left_at_budget") or []
-    return f" (not converged: {', '.join(left)} left)" if left else ""
+    note = f" (not converged: {', '.join(left)} left)" if left else ""
+    return note + (" (fit not settled)" if r.get("unsettled") else "")
 
 
 def _share(b, a, cb, ca, hit) -> float | None:

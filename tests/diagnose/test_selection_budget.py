@@ -10,6 +10,7 @@ drop it silently. With two rounds both are claimed and nothing is flagged.
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import pytest
 
@@ -50,4 +51,26 @@ def test_two_rounds_claim_both_and_flag_nothing(frame):
     assert {e.name for e in d.effects} == {"drag_coefficient_error", "loadcell_crosstalk"}
     assert d.left_at_budget == [] and d.unfinished() is None
     assert "selection_budget" not in d.to_json()
+    # the crosstalk's columns read the prediction: its fits are fixed points, and the final one was reached
+    assert d.unsettled == [] and "fit_convergence" not in d.to_json()
     assert "Not converged" not in markdown(d, {})
+
+
+def test_a_final_fit_short_of_its_fixed_point_is_flagged(frame, monkeypatch, tmp_path):
+    """The fixed-point record of every fit says not settled (its numbers are the real ones): the diagnosis,
+    its report and the demo report's section say so beside the claims."""
+    from workbench.diagnose import problem as problem_mod
+    from workbench.report.diagnosis import diagnosis_section
+
+    real = problem_mod._fixed_point
+    monkeypatch.setattr(problem_mod, "_fixed_point", lambda *a: dataclasses.replace(real(*a), settled=False))
+    d = diagnose(frame, EmpiricalFormula(), "ef", settings=_settings(2))
+    assert len(d.unsettled) == 1 and "fixed point was not reached" in d.unsettled[0]
+    assert "loadcell_crosstalk" in d.unsettled[0] or "drag_coefficient_error" in d.unsettled[0]
+    j = d.to_json()
+    assert j["fit_convergence"] == {"converged": False, "notes": d.unsettled}
+    assert f"**Not converged:** {d.unsettled[0]}." in markdown(d, {})
+    out = tmp_path / "diagnosis" / "camp"
+    out.mkdir(parents=True)
+    (out / "diagnosis.json").write_text(json.dumps(j))
+    assert any(d.unsettled[0] in p for p in diagnosis_section(tmp_path).paragraphs)

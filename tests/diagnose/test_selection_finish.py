@@ -58,11 +58,12 @@ def test_an_effect_the_backward_check_drops_leaves_a_row_in_the_record(monkeypat
 
     class Fit(tuple):
         grams = None
+        fixed_point = None  # one linear solve: nothing to settle
 
         def coefs(self):
             return {}
 
-    problem = SimpleNamespace(settings=SimpleNamespace(hac_lags=2),
+    problem = SimpleNamespace(settings=SimpleNamespace(hac_lags=2, settle_rounds=4),
                               fit=lambda cfg, coefs, names: Fit(("fit", cfg)))
     steps = [SimpleNamespace(candidate=SimpleNamespace(effect=weak)),
              SimpleNamespace(candidate=SimpleNamespace(effect=strong))]

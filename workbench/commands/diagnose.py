@@ -326,6 +326,5 @@ def _print_claims(d) -> None:
     for u in d.unexplained:
         f = f" at {u.frequency_hz:.2f} Hz" if u.frequency_hz is not None else ""
         info(f"  unexplained {u.kind}{f} in {', '.join(u.channels)}")
-    unfinished = d.unfinished()
-    if unfinished:
-        info(f"  note: {unfinished}")
+    for note in d.not_converged():
+        info(f"  note: {note}")

@@ -189,4 +189,14 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
         final_table=result.last_table, heldout_runs=campaign.run_ids(True), train_runs=campaign.run_ids(False),
         settings=s, runtime_s=time.perf_counter() - t_start,
         profiles={st.candidate.effect.name: st.candidate.profile for st in result.steps if st.candidate.profile},
-        reference=ref_summary, left_at_budget=list(result.left_at_budget))
+        reference=ref_summary, left_at_budget=list(result.left_at_budget),
+        unsettled=_unsettled(final, result.last_table))
+
+
+def _unsettled(final: lsq.Fit, table: list[dict]) -> list[str]:
+    """What did not reach its fixed point: the crosstalk/drift refits (the selection's ``settle`` row), the final fit."""
+    out = [r["note"] for r in table if r.get("effect") == "settle" and not r.get("ok", True) and r.get("note")]
+    fp = final.fixed_point
+    if fp is not None and not fp.settled:
+        out.append(fp.note())
+    return out

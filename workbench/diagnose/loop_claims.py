@@ -19,7 +19,7 @@ from workbench.diagnose.chain import Active, Configuration, Design
 from workbench.diagnose.evidence_base import Evidence
 from workbench.diagnose.loop_results import CHANNELS, EffectReport, Unexplained
 from workbench.diagnose.loop_settings import DiagnoseSettings
-from workbench.diagnose.problem import Problem
+from workbench.diagnose.problem import Problem, fit_settled
 from workbench.diagnose.selection import judge
 
 
@@ -97,7 +97,7 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
         key = frozenset(members)
         if key not in prefix_fits:
             part = Configuration([a for a in config.actives if a.name in key])
-            prefix_fits[key] = problem.fit(part, coefs, [n for n in names if n.split(".", 1)[0] in key])
+            prefix_fits[key] = fit_settled(problem, part, coefs, [n for n in names if n.split(".", 1)[0] in key])
         return prefix_fits[key]
 
     def heldout_mse(f: lsq.Fit) -> np.ndarray:
@@ -191,7 +191,7 @@ def _enforce_claims(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
         say(f"dropped {worst.name}: {faults[worst.name]}")
         config = result.config.without(worst.name)
         names = [n for n in result.names if n.split(".", 1)[0] != worst.name]
-        fit = problem.fit(config, result.fit.coefs(), names)
+        fit = fit_settled(problem, config, result.fit.coefs(), names)
         steps = [st for st in result.steps if st.candidate.effect.name != worst.name]
         table = list(result.last_table) + [{"effect": worst.name, "label": worst.name, "t": worst.test.get("t", 0.0),
                                             "p": worst.test.get("p", 1.0), "llr": worst.test.get("llr", 0.0),

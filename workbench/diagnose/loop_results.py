@@ -95,6 +95,8 @@ class Diagnosis:
     reference: dict | None = None
     #: selection-record rows of candidates still acceptable when the round budget ran out (empty: converged)
     left_at_budget: list[dict] = field(default_factory=list)
+    #: sentences on fits whose fixed point was not reached (the final fit's passes, the crosstalk/drift refits)
+    unsettled: list[str] = field(default_factory=list)
 
     def unfinished(self) -> str | None:
         """One sentence when the selection ran out of rounds with acceptable candidates left (None: it stopped by itself)."""
@@ -104,6 +106,10 @@ class Diagnosis:
         return (f"the selection stopped at its budget of {self.settings.selection.max_effects} rounds with "
                 f"{len(self.left_at_budget)} acceptable candidate(s) left: {left}; it did not converge "
                 "(raise selection.max_effects to go on)")
+
+    def not_converged(self) -> list[str]:
+        """Every sentence saying what did not converge: the selection's budget, the final fit's fixed point (empty: all did)."""
+        return [x for x in (self.unfinished(), *self.unsettled) if x]
 
     def mse_after_corrected(self) -> dict[str, float] | None:
         """Held-out MSE against the readings corrected by the claimed sensor-side effects (None: none, or one not invertible).
@@ -145,6 +151,7 @@ class Diagnosis:
                 "acceptable_left": [{k: r[k] for k in ("effect", "label", "t", "p", "max_gain") if k in r}
                                     for r in self.left_at_budget],
                 "note": self.unfinished()}} if self.left_at_budget else {}),
+            **({"fit_convergence": {"converged": False, "notes": list(self.unsettled)}} if self.unsettled else {}),
         }
 
 

@@ -143,6 +143,31 @@ def weighted(gr: Grams, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return gw, bw, gr.yy @ w
 
 
+@dataclass(frozen=True)
+class FixedPoint:
+    """How a fit's fixed-point passes ended (crosstalk columns read the prediction the force coefficients set).
+
+    ``step_se``: the last pass's largest coefficient move in that coefficient's standard errors,
+    ``worst`` its name. The fit settled when the relative change fell under the tolerance, or
+    when the last move is a small share of the coefficients' own uncertainty (``STEP_SE``): more
+    passes would not change what the fit says.
+    """
+
+    passes: int
+    change: float
+    step_se: float
+    worst: str
+    settled: bool
+
+    #: a last move under this many standard errors counts as settled
+    STEP_SE = 0.1
+
+    def note(self) -> str:
+        """One sentence for a record or a report."""
+        return (f"the fit's fixed point was not reached after {self.passes} passes: the last pass moved {self.worst} "
+                f"by {self.step_se:.2g} standard errors (relative change {self.change:.2g})")
+
+
 @dataclass
 class Fit:
     """A weighted least-squares fit of shared (and per-run) coefficients."""
@@ -154,6 +179,8 @@ class Fit:
     cov: np.ndarray                   # (K, K) HAC covariance of theta
     sse_block: np.ndarray             # (nb,) weighted SSE per block
     sse_block_c: np.ndarray           # (nb, 6) SSE per block and channel (unweighted)
+    #: how the fixed-point passes of :meth:`~workbench.diagnose.problem.Problem.fit` ended (None: one linear solve)
+    fixed_point: FixedPoint | None = None
 
     def coefs(self) -> dict[str, float]:
         """Shared coefficients by name."""

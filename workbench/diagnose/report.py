@@ -199,9 +199,8 @@ def markdown(d, figures: dict[str, str], truth: dict | None = None) -> str:
     j = d.to_json()
     lines = _error_table(d)
     lines += ["", "## Effects claimed (best first)", ""]
-    unfinished = d.unfinished()
-    if unfinished:
-        lines += [f"**Not converged:** {unfinished}.", ""]
+    for note in d.not_converged():
+        lines += [f"**Not converged:** {note}.", ""]
     if not d.effects:
         lines.append("None: no candidate beat the noise on held-out runs.")
     for e in d.effects:

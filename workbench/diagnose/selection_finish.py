@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from workbench.diagnose.chain import Active
+from workbench.diagnose.problem import fit_settled
 from workbench.diagnose.selection_candidates import peak_grid, prune
 from workbench.diagnose.selection_claims import (
     crossfit_applies,
@@ -138,6 +139,8 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps,
     (``table``, when given) keeps a row saying so.
     """
     hac = problem.settings.hac_lags
+    # every fit judged here at its fixed point (a crosstalk's passes may settle slowly: problem.fit_settled)
+    current = fit_settled(problem, config, current.coefs(), names)
     changed = True
     while changed and len(config.actives) > 1:
         changed = False
@@ -146,7 +149,7 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps,
         for a in config.actives:
             rnames = [n for n in names if not n.startswith(a.name + ".")]
             rest = profiled(s, problem, config, a, current.coefs(), rnames)
-            f, after = problem.fit(rest, current.coefs(), rnames), current
+            f, after = fit_settled(problem, rest, current.coefs(), rnames), current
             jn = a.effect.judged_as(dict(a.nl))
             variants, telling = [], None
             if jn is None and len(a.effect.null_variants(dict(a.nl))) >= 3:
@@ -157,10 +160,10 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps,
                 # judged as at its step: beside its nuisance, against the nuisance alone
                 own = [n for n in names if n.startswith(a.name + ".")]
                 jnames = names + [f"{a.name}.{n}" for n in a.effect.judging_names(jn, own)]
-                after = problem.fit(config.with_effect(Active(a.effect, jn)), current.coefs(), jnames)
+                after = fit_settled(problem, config.with_effect(Active(a.effect, jn)), current.coefs(), jnames)
                 nulls = a.effect.null_variants(jn)
                 if nulls:
-                    f = problem.fit(config.with_effect(Active(a.effect, nulls[0])), current.coefs(), jnames)
+                    f = fit_settled(problem, config.with_effect(Active(a.effect, nulls[0])), current.coefs(), jnames)
             if crossfit_applies(s, a.effect, f, after, variants):
                 # judged cross-fitted, as at its step (selection_claims.crossfit_plan)
                 test, gain = crossfit_judge(f, after, problem.block_folds(after.grams, s.judge_folds), problem.weights,
@@ -179,7 +182,7 @@ def backward_check(s: SelectionSettings, problem, config, names, current, steps,
             # the partners keep the values searched without it (the profile the test was judged on)
             config = rest
             names = rnames
-            current = problem.fit(config, current.coefs(), names)
+            current = fit_settled(problem, config, current.coefs(), names)
             steps = [st for st in steps if st.candidate.effect.name != a.name]
             changed = True
     return config, names, current, steps

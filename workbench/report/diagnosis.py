@@ -32,6 +32,8 @@ def diagnosis_section(datasets: Path) -> Section:
         budget = doc.get("selection_budget") or {}
         if budget.get("converged") is False and budget.get("note"):
             sec.paragraphs.append(f"**Not converged:** {budget['note']}.")
+        for note in (doc.get("fit_convergence") or {}).get("notes", []):
+            sec.paragraphs.append(f"**Not converged:** {note}.")
         for u in doc.get("unexplained", []) or []:
             sec.paragraphs.append(f"**Unexplained ({u.get('kind', '?')})** in {', '.join(u.get('channels', []))}"
                                   + (f" at {fmt(u.get('frequency_hz'), 2)} Hz" if u.get("frequency_hz") else "")

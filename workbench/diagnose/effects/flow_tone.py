@@ -252,7 +252,9 @@ class FlowUnsteadiness(Effect):
         else:
             held = raw
         # every gait harmonic below the low-pass cutoff (a slow gait has more than the evidence's 12)
-        free_cols = [without_stroke(c, ctx.time_s, rs.fit, freq, max_harmonics=24) for c in raw]
+        # both phases through one projection per run (the basis is the run's, not the column's)
+        both = without_stroke(np.concatenate(raw, axis=-1), ctx.time_s, rs.fit, freq, max_harmonics=24)
+        free_cols = np.split(both, 2, axis=-1)
         # a run whose harmonics the searched frequency itself hits keeps too little of its columns: what
         # is left (the harmonics' slow change over the run) fits the misfit's, not a tone
         fit = np.asarray(rs.fit, bool)[..., None]
