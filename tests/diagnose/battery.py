@@ -153,6 +153,24 @@ PROBE = [
          family={"leg_weight_buoyancy": STATIC_LOADS}),
 ]
 
+#: a second probe (30 Nov 2026): the ends of issue 13's ranges the others do not reach, on channel
+#: pairs they do not use (1 % crosstalk, 20 and 80 ms, a drift in fy, a 1.5 Hz / 10 % tone, vibration at
+#: 2.2 Hz and 8 Hz, a mount mode above the low-pass cutoff)
+PROBE2 = [
+    Case("xt_fy_from_fz_1pc", lambda: [P.crosstalk("fy_n", "fz_n", 0.01)], {"loadcell_crosstalk": {"x_fy_fz": 0.01}},
+         sensor_side=True),
+    Case("servo_dead_20ms", lambda: [P.servo_dead_time(0.02)], {"servo_lag": {"tau_s": 0.02}}),
+    Case("servo_dead_80ms", lambda: [P.servo_dead_time(0.08)], {"servo_lag": {"tau_s": 0.08}}),
+    Case("drift_fy", lambda: [P.drift("fy_n", 0.001)], {"sensor_drift": {"rate_fy_n_per_s": 0.001}},
+         sensor_side=True),
+    Case("tone_1.5Hz_10pc", lambda: [P.flow_tone(1.5, 0.10, seed=7)],
+         {"flow_unsteadiness": {"tone_hz": 1.5, "tone_fraction": 0.10}}),
+    Case("vib_2.2Hz_fz", lambda: [P.vibration(2.2, {"fz_n": 0.01}, seed=4)], lines=[(2.2, ("fz_n",))]),
+    Case("vib_8Hz_fy", lambda: [P.vibration(8.0, {"fy_n": 0.02}, seed=6)], lines=[(8.0, ("fy_n",))]),
+    Case("mode_7Hz", lambda: [P.mode(7.0, 0.05)], {"structural_resonance": {"f_n_hz": 7.0, "zeta": 0.05}},
+         sensor_side=True),
+]
+
 PAIRS = [
     ("servo_dead_60ms", "drift_fz_1.5mN_per_s"),
     ("crosstalk_fz_from_fy_3pc", "mount_mode_4.5Hz"),
@@ -162,7 +180,7 @@ PAIRS = [
 
 def case(name: str) -> Case:
     """A single case by name."""
-    return next(c for c in SINGLES + COMMAND_SERVOS + TONE_RANGE + PROBE if c.name == name)
+    return next(c for c in SINGLES + COMMAND_SERVOS + TONE_RANGE + PROBE + PROBE2 if c.name == name)
 
 
 def pair(a: str, b: str) -> Case:

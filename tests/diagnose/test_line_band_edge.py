@@ -20,9 +20,9 @@ from workbench.diagnose.evidence_lines import find_peaks, line_scan, spectral_fl
 DT = 1 / 65.0
 
 
-def _residuals(line_hz: float | None = None):
+def _residuals(line_hz: float | None = None, process_hz: tuple[float, float] = (6.7, 7.3)):
     rng = np.random.default_rng(5)
-    sos = signal.butter(2, [6.7, 7.3], btype="bandpass", fs=1 / DT, output="sos")
+    sos = signal.butter(2, list(process_hz), btype="bandpass", fs=1 / DT, output="sos")
     runs, parts = [], []
     for _ in range(24):
         n = int(20 / DT)
@@ -58,3 +58,15 @@ def test_a_line_inside_is_found_and_the_process_where_it_is_when_the_band_reache
     wide = _lines(runs, parts, fmax_hz=9.0)
     assert [f for f, c in wide if "tz_nm" in c and 6.7 <= f <= 7.3], wide
 
+
+
+def test_a_process_rising_past_the_edge_is_no_line_and_is_found_where_it_is_in_a_wider_band():
+    """A narrowband process at 6.55-6.75 Hz, just above the band: the band's top bins sit on its rising
+    flank. Without the check that a line's best bin is a local maximum (it must not rise on into the bins
+    past the edge) this read as a line at 6.97 Hz, outside the band (the parabola through the flank's
+    top bins extrapolates); the line scan's own band (``lines_fmax_hz``, 9 Hz) finds the process at its
+    centre."""
+    runs, parts = _residuals(process_hz=(6.55, 6.75))
+    assert _lines(runs, parts) == []
+    wide = _lines(runs, parts, fmax_hz=EvidenceSettings().lines_fmax_hz)
+    assert [f for f, c in wide if "tz_nm" in c and 6.55 <= f <= 6.75], wide

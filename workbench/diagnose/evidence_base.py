@@ -46,8 +46,11 @@ class RunResidual:
 class EvidenceSettings:
     """Evidence knobs (``pipelines/diagnose.yaml`` section ``evidence``)."""
 
-    #: highest frequency examined (Hz); the ingest's low-pass leaves nothing above
+    #: highest frequency examined (Hz) by the stroke-locked, tone and Welch evidence (the ingest's low-pass cutoff)
     fmax_hz: float = 6.5
+    #: highest frequency the narrowband line scan examines (Hz): past the low-pass cutoff, which lowers a line
+    #: and the noise around it alike (an 8 Hz rig vibration through the 6 Hz, order-4 filter keeps its ratio)
+    lines_fmax_hz: float = 9.0
     fmin_hz: float = 0.2
     welch_segment_s: float = 8.0
     #: narrowband peak: at least this ratio to the floor and significant at ``peak_alpha`` (Bonferroni over bins)

@@ -9,12 +9,17 @@ gait harmonic must stand on its own in the runs whose harmonics miss it).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy import signal, stats
 
 from workbench.contract.columns import WRENCH_CHANNELS
 from workbench.diagnose.evidence_base import EvidenceSettings, Peak, RunResidual
 from workbench.diagnose.evidence_locked import gait_locked, harmonic_tolerance
+
+#: the line scan takes every third tick (a 65 Hz reading: lines to 10.8 Hz)
+SCAN_STRIDE = 3
 
 
 def _segment(n_ticks: int, dt: float, seconds: float) -> int:
@@ -82,6 +87,9 @@ def find_peaks(freqs, psd, floor, dof, s: EvidenceSettings) -> list[Peak]:
         chans = [WRENCH_CHANNELS[c] for c in range(nc) if hit[g, c].any()]
         # parabolic interpolation of the peak in the strongest channel
         c0 = int(np.argmax(ratio[i]))
+        if _beyond_band(ratio[:, c0], band, i):
+            # still rising at the band's edge: the maximum is outside it (the skirt of something above)
+            continue
         fi = freqs[i]
         if 0 < i < len(freqs) - 1:
             y0, y1, y2 = np.log(psd[i - 1:i + 2, c0])
@@ -92,6 +100,15 @@ def find_peaks(freqs, psd, floor, dof, s: EvidenceSettings) -> list[Peak]:
         peaks.append(Peak(float(fi), chans, {WRENCH_CHANNELS[c]: float(ratio[g, c].max()) for c in range(nc)
                                              if hit[g, c].any()}, p))
     return peaks
+
+
+def _beyond_band(ratio: np.ndarray, band: np.ndarray, i: int) -> bool:
+    """Whether bin ``i``, the best of a group at the band's edge, rises on into the bins past the edge."""
+    for step in (1, -1):
+        j = i + step
+        if 0 <= j < len(ratio) and not band[j] and ratio[j] >= ratio[i]:
+            return True
+    return False
 
 
 def _near_harmonic(f: float, gait_hz: float, tol_hz: float) -> bool:
@@ -121,7 +138,7 @@ def line_scan(runs: list[RunResidual], parts: list[np.ndarray], settings: Eviden
     cut at ``fmax_hz``, the rising skirt of something above the band (a FED-LSTM's clean demo copy:
     tx power rising to 8.1 Hz) stood 5x over a one-sided floor and read as "a line at 6.50 Hz".
     """
-    stride = 3
+    stride = SCAN_STRIDE
     lengths = [len(p[::stride]) for p in parts]
     nfft, fs = _scan_grid(runs[0].dt_s, stride, step_hz, max(lengths, default=8))
     freqs = np.fft.rfftfreq(nfft, 1 / fs)
@@ -155,9 +172,11 @@ def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cut
     the lines at rest, which tell the carrier).
     """
     s = settings or EvidenceSettings()
+    # lines are looked for past the low-pass cutoff, to ``lines_fmax_hz`` (within the scan's Nyquist frequency)
     runs = [r for r in runs if r.fit.sum() >= 16]
     if len(runs) < 2:
         return []
+    s = dataclasses.replace(s, fmax_hz=_lines_fmax(s, runs[0].dt_s))
     parts = [r.resid[r.fit] - r.resid[r.fit].mean(axis=0) - gait_locked(r, cutoff_hz) for r in runs]
     freqs, scan, dof = line_scan(runs, parts, s)
     found = find_peaks(freqs, scan, spectral_floor(freqs, scan, s.floor_window_hz), dof, s)
@@ -167,6 +186,12 @@ def peaks(runs: list[RunResidual], settings: EvidenceSettings | None = None, cut
         return find_peaks(f2, sc2, spectral_floor(f2, sc2, s.floor_window_hz), dof2, s)
 
     return mark_sidebands(stand_off_harmonics(found, runs, rescan), runs, rescan, rest)
+
+
+def _lines_fmax(s: EvidenceSettings, dt_s: float) -> float:
+    """The line scan's top: ``lines_fmax_hz``, at least ``fmax_hz``, and half a floor window under the scan's Nyquist frequency."""
+    nyquist = 0.5 / (dt_s * SCAN_STRIDE)
+    return float(max(s.fmax_hz, min(s.lines_fmax_hz, nyquist - 0.5 * s.floor_window_hz)))
 
 
 #: the shortest rest stretch (s) a run's rest lines are scanned from

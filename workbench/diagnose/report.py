@@ -79,7 +79,8 @@ def fig_spectra(d) -> bytes:
     eb, ea = d.evidence_before, d.evidence_after
     fig, axes = plt.subplots(2, 3, figsize=(13, 6.5))
     gait = sorted({round(r.freq, 3) for r in d.residuals_before if np.isfinite(r.freq)})
-    fmax = 1.3 * d.settings.evidence.fmax_hz
+    ev = d.settings.evidence
+    fmax = max(1.3 * ev.fmax_hz, ev.lines_fmax_hz + 0.3)  # lines are looked for past the low-pass cutoff
     kb, ka = eb.freqs <= fmax, ea.freqs <= fmax
     for c, ax in enumerate(axes.ravel()):
         ax.semilogy(eb.freqs[kb], eb.psd_rest[kb, c], color="tab:red", lw=1, label="before")
