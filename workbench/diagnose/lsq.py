@@ -159,6 +159,8 @@ class FixedPoint:
     worst: str
     settled: bool
 
+    #: the passes stop when the largest relative change falls under this (``Problem.fit``)
+    RELATIVE = 1e-3
     #: a last move under this many standard errors counts as settled
     STEP_SE = 0.1
 

@@ -180,7 +180,7 @@ class Problem:
                           if not n.startswith(readers)), default=0.0)
             move = {n: (v - coefs.get(n, 0.0)) / (abs(v) + 1e-12) for n, v in new.items()}
             k += 1
-            if change < 1e-3:
+            if change < lsq.FixedPoint.RELATIVE:
                 break
             if step == 1.0 and last is not None and _reverses(move, last):
                 # the passes swing back and forth (a crosstalk's guard reads residuals the force
@@ -205,7 +205,7 @@ def _fixed_point(result: lsq.Fit, coefs: dict, passes: int, change: float) -> ls
     worst = max(moves, key=moves.get, default="")
     step_se = float(moves.get(worst, 0.0))
     return lsq.FixedPoint(passes, float(change), step_se, worst,
-                          bool(change < 1e-3 or step_se < lsq.FixedPoint.STEP_SE))
+                          bool(change < lsq.FixedPoint.RELATIVE or step_se < lsq.FixedPoint.STEP_SE))
 
 
 def fit_settled(problem: Problem, config: Configuration, coefs: dict | None = None, names: list[str] | None = None,
