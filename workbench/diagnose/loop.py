@@ -190,13 +190,19 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
         settings=s, runtime_s=time.perf_counter() - t_start,
         profiles={st.candidate.effect.name: st.candidate.profile for st in result.steps if st.candidate.profile},
         reference=ref_summary, left_at_budget=list(result.left_at_budget),
-        unsettled=_unsettled(final, result.last_table))
+        unsettled=_unsettled(final, result.last_table, config, getattr(problem, "search_notes", {})))
 
 
-def _unsettled(final: lsq.Fit, table: list[dict]) -> list[str]:
-    """What did not reach its fixed point: the crosstalk/drift refits (the selection's ``settle`` row), the final fit."""
+def _unsettled(final: lsq.Fit, table: list[dict], config: Configuration, search_notes: dict) -> list[str]:
+    """What did not converge: the crosstalk/drift refits, the final fit, the claimed effects' final searches.
+
+    The refits are the selection's ``settle`` row; the searches, each claimed effect's last final
+    refinement of its nonlinear parameters (``problem.search_notes``, :func:`selection_finish.refine`).
+    """
     out = [r["note"] for r in table if r.get("effect") == "settle" and not r.get("ok", True) and r.get("note")]
     fp = final.fixed_point
     if fp is not None and not fp.settled:
         out.append(fp.note())
+    out += [f"the final search of {a.name} did not converge ({search_notes[a.name]})"
+            for a in config.actives if search_notes.get(a.name)]
     return out

@@ -32,11 +32,14 @@ def refine(s: SelectionSettings, problem, config, coefs, names, current):
     """
     surrogate = getattr(problem, "surrogate_search", False)
     problem.surrogate_search = False
+    # each effect's last final search that did not converge, by name (the diagnosis reports the claimed ones')
+    notes = problem.__dict__.setdefault("search_notes", {})
     try:
         for a in list(config.actives):
             if not a.effect.search:
                 continue
             rest = config.without(a.name)
+            profile: dict = {}
             if surrogate and a.effect.stage == "input":
                 # the surrogate's optimum is right to first order: a parabola through three
                 # evaluations of the model itself finishes its first searched parameter (each
@@ -47,7 +50,7 @@ def refine(s: SelectionSettings, problem, config, coefs, names, current):
                 # early step can sit in its old basin (a dead time found as a short pure lag):
                 # its whole grid is searched again, the current values added to it
                 grids = {p.name: tuple(sorted({*p.grid, float(a.nl[p.name])})) for p in a.effect.search}
-                nl, _ = search(s, problem, rest, coefs, names, a.effect, grids=grids, fast=False)
+                nl, profile = search(s, problem, rest, coefs, names, a.effect, grids=grids, fast=False)
             elif a.effect.needs_peak:
                 # a line's effect stays on its line: searched again within the window it was proposed in.
                 # Warm-started (+-20 %), the FED-LSTM's 2.00 Hz flow tone on the demo campaign moved to
@@ -56,10 +59,14 @@ def refine(s: SelectionSettings, problem, config, coefs, names, current):
                 first = a.effect.search[0].name
                 grids = peak_grid(s, a.effect, float(a.nl[first]))
                 grids[first] = tuple(sorted({*grids[first], float(a.nl[first])}))
-                nl, _ = search(s, problem, rest, coefs, names, a.effect, grids=grids, fast=False)
+                nl, profile = search(s, problem, rest, coefs, names, a.effect, grids=grids, fast=False)
             else:
-                nl, _ = search(s, problem, rest, coefs, names, a.effect, start=dict(a.nl), fast=False)
+                nl, profile = search(s, problem, rest, coefs, names, a.effect, start=dict(a.nl), fast=False)
             config = rest.with_effect(Active(a.effect, nl))
+            if profile.get("note"):
+                notes[a.name] = profile["note"]
+            else:
+                notes.pop(a.name, None)
     finally:
         problem.surrogate_search = surrogate
     current = problem.fit(config, coefs, names)

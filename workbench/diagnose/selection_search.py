@@ -56,10 +56,11 @@ def search(s: SelectionSettings, problem, config: Configuration, coefs: dict, na
         points = list(product(*axes))
         vals = [objective(pt) for pt in points]
         best = list(points[int(np.argmin(vals))])
-    out = _refine_locally(s, objective, params, best, grids, warm)
+    out, unfinished = _refine_locally(s, objective, params, best, grids, warm)
     if objective(out) > objective(best):
         out = best
-    profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values())}
+    profile = {"params": pnames, "points": [list(k) for k in cache], "sse": list(cache.values()),
+               "converged": unfinished is None, "note": unfinished}
     return effect.searched(dict(zip(pnames, out, strict=False)), problem, config, coefs, names), profile
 
 
@@ -92,8 +93,16 @@ def _beside_filters(problem, config: Configuration, coefs: dict, names: list[str
     return grams
 
 
-def _refine_locally(s: SelectionSettings, objective, params, best: list, grids: dict | None, warm: bool) -> list[float]:
-    """Local refinement from ``best`` in (log) coordinates, clipped to the bounds: bounded 1-D search or Nelder-Mead."""
+def _refine_locally(s: SelectionSettings, objective, params, best: list, grids: dict | None,
+                    warm: bool) -> tuple[list[float], str | None]:
+    """Local refinement from ``best`` in (log) coordinates, clipped to the bounds: bounded 1-D search or Nelder-Mead.
+
+    Returns the values and None when the search converged, else a sentence saying why it did not:
+    the 1-D search ran out of evaluations, or its best value sits at its window's edge inside the
+    parameter's bounds (the optimum lies outside the window); Nelder-Mead's simplex still spans
+    more than ``SIMPLEX_SPAN`` in (log) coordinates when its evaluations run out (its ``fatol`` is
+    never met on an SSE, so its own success flag says nothing).
+    """
     pnames = [p.name for p in params]
     logs = [p.log for p in params]
     lo = np.array([np.log(p.bounds[0]) if p.log else p.bounds[0] for p in params])
@@ -113,19 +122,33 @@ def _refine_locally(s: SelectionSettings, objective, params, best: list, grids: 
             step = s.warm_window if logs[0] else max(0.2 * abs(x0[0]), 0.05)
         if grids and pnames[0] in grids and len(grids[pnames[0]]) > 1:
             step = float(np.diff(grids[pnames[0]]).mean())
-        res = optimize.minimize_scalar(lambda x: objective(from_x(np.array([x]))),
-                                       bounds=(max(lo[0], x0[0] - step), min(hi[0], x0[0] + step)),
-                                       method="bounded",
-                                       options={"xatol": 0.005 if logs[0] else 5e-4,
-                                                "maxiter": s.refine_evals})
-        return from_x(np.array([res.x]))
+        window = (max(lo[0], x0[0] - step), min(hi[0], x0[0] + step))
+        xatol = 0.005 if logs[0] else 5e-4
+        res = optimize.minimize_scalar(lambda x: objective(from_x(np.array([x]))), bounds=window, method="bounded",
+                                       options={"xatol": xatol, "maxiter": s.refine_evals})
+        out = from_x(np.array([res.x]))
+        edge = [w for w, b in zip(window, (lo[0], hi[0]), strict=True) if abs(res.x - w) < 2 * xatol and abs(w - b) > 1e-12]
+        if edge:
+            return out, f"{pnames[0]}: its best value lies at the edge of its search window (the optimum is beyond it)"
+        if not res.success:
+            return out, f"{pnames[0]}: the 1-D search ran out of its {s.refine_evals} evaluations"
+        return out, None
     simplex = [x0] + [x0 + np.eye(len(x0))[i] * (0.3 if logs[i] else 0.1 * max(abs(x0[i]), 0.5))
                       for i in range(len(x0))]
+    maxfev = s.refine_evals * len(x0) * 2
     res = optimize.minimize(lambda x: objective(from_x(x)), x0, method="Nelder-Mead",
-                            options={"initial_simplex": np.array(simplex),
-                                     "maxfev": s.refine_evals * len(x0) * 2,
+                            options={"initial_simplex": np.array(simplex), "maxfev": maxfev,
                                      "xatol": 1e-3, "fatol": 1e-9})
-    return from_x(res.x)
+    sim = np.clip(res.final_simplex[0], lo, hi)
+    span = float(np.max(np.abs(sim - sim[0]))) if len(sim) else 0.0
+    if span > SIMPLEX_SPAN:
+        return from_x(res.x), (f"{', '.join(pnames)}: Nelder-Mead's simplex still spans {span:.2g} (log) units after "
+                               f"its {maxfev} evaluations")
+    return from_x(res.x), None
+
+
+#: a Nelder-Mead simplex narrower than this in (log) coordinates has converged (1 % of a log-scaled value)
+SIMPLEX_SPAN = 0.01
 
 
 def parabola(problem, config, coefs, names, effect, start: dict) -> dict:
