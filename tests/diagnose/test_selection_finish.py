@@ -29,7 +29,7 @@ def test_the_refinement_searches_a_tone_within_the_window_of_its_line(monkeypatc
     monkeypatch.setattr(selection_finish, "search", search)
     tone = make_effect("flow_unsteadiness")
     config = Configuration().with_effect(Active(tone, {"tone_hz": 2.0018}))
-    problem = SimpleNamespace(surrogate_search=False, fit=lambda cfg, coefs, names: ("fit", cfg))
+    problem = SimpleNamespace(surrogate_search=False, search_notes={}, fit=lambda cfg, coefs, names: ("fit", cfg))
     s = SelectionSettings()
     out, _ = selection_finish.refine(s, problem, config, {}, [], None)
 

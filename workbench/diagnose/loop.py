@@ -190,7 +190,7 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
         settings=s, runtime_s=time.perf_counter() - t_start,
         profiles={st.candidate.effect.name: st.candidate.profile for st in result.steps if st.candidate.profile},
         reference=ref_summary, left_at_budget=list(result.left_at_budget),
-        unsettled=_unsettled(final, result.last_table, config, getattr(problem, "search_notes", {})))
+        unsettled=_unsettled(final, result.last_table, config, problem.search_notes))
 
 
 def _unsettled(final: lsq.Fit, table: list[dict], config: Configuration, search_notes: dict) -> list[str]:

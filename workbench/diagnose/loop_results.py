@@ -95,7 +95,8 @@ class Diagnosis:
     reference: dict | None = None
     #: selection-record rows of candidates still acceptable when the round budget ran out (empty: converged)
     left_at_budget: list[dict] = field(default_factory=list)
-    #: sentences on fits whose fixed point was not reached (the final fit's passes, the crosstalk/drift refits)
+    #: sentences on what did not converge: the final fit's passes, the crosstalk/drift refits, the claimed effects'
+    #: final searches
     unsettled: list[str] = field(default_factory=list)
 
     def unfinished(self) -> str | None:
@@ -108,7 +109,7 @@ class Diagnosis:
                 "(raise selection.max_effects to go on)")
 
     def not_converged(self) -> list[str]:
-        """Every sentence saying what did not converge: the selection's budget, the final fit's fixed point (empty: all did)."""
+        """Every sentence saying what did not converge: the selection's budget, then :attr:`unsettled` (empty: all did)."""
         return [x for x in (self.unfinished(), *self.unsettled) if x]
 
     def mse_after_corrected(self) -> dict[str, float] | None:

@@ -61,6 +61,8 @@ class Problem:
         # the model's output, kinematics and the last force-stage stack per batch (a search over a
         # filter, sensor or per-run parameter, and the fixed-point passes, reuse them)
         self._caches: dict[int, dict] = {id(rs): {} for rs in [*self.search_sets, *campaign.sets]}
+        #: per effect, why its last final search did not converge (``selection_finish.refine``; absent: it did)
+        self.search_notes: dict[str, str] = {}
         import time
 
         t0 = time.perf_counter()
@@ -220,14 +222,15 @@ def fit_settled(problem: Problem, config: Configuration, coefs: dict | None = No
     """
     rounds = problem.settings.settle_rounds if rounds is None else rounds
     f = problem.fit(config, coefs, names)
-    total = f.fixed_point.passes if f.fixed_point is not None else 0
+    if f.fixed_point is None:  # one linear solve: nothing to settle
+        return f
+    total = f.fixed_point.passes
     for _ in range(rounds):
-        if f.fixed_point is None or f.fixed_point.settled:
+        if f.fixed_point.settled:
             break
         f = problem.fit(config, f.coefs(), names)
-        total += f.fixed_point.passes if f.fixed_point is not None else 1
-    if f.fixed_point is not None:
-        f.fixed_point = dataclasses.replace(f.fixed_point, passes=total)
+        total += f.fixed_point.passes
+    f.fixed_point = dataclasses.replace(f.fixed_point, passes=total)
     return f
 
 

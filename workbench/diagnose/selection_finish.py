@@ -32,8 +32,7 @@ def refine(s: SelectionSettings, problem, config, coefs, names, current):
     """
     surrogate = getattr(problem, "surrogate_search", False)
     problem.surrogate_search = False
-    # each effect's last final search that did not converge, by name (the diagnosis reports the claimed ones')
-    notes = problem.__dict__.setdefault("search_notes", {})
+    notes = problem.search_notes  # the diagnosis reports the claimed effects' unconverged final searches
     try:
         for a in list(config.actives):
             if not a.effect.search:
