@@ -171,6 +171,29 @@ PROBE2 = [
          sensor_side=True),
 ]
 
+#: members of the third probe's pairs that no other list plants (a force-to-torque crosstalk on tz, a
+#: vibration in tz alone, a fast weak tone)
+PROBE3_SINGLES = [
+    Case("xt_tz_from_fx_3pc", lambda: [P.crosstalk("tz_nm", "fx_n", 0.03)], {"loadcell_crosstalk": {"x_tz_fx": 0.03}},
+         sensor_side=True),
+    Case("vib_5Hz_tz", lambda: [P.vibration(5.0, {"tz_nm": 0.002}, seed=8)], lines=[(5.0, ("tz_nm",))]),
+    Case("tone_4Hz_3pc", lambda: [P.flow_tone(4.0, 0.03, seed=9)],
+         {"flow_unsteadiness": {"tone_hz": 4.0, "tone_fraction": 0.03}}),
+]
+
+#: a third probe (30 Nov 2026): pairs the battery does not plant, chosen where effects trade off (a
+#: servo beside a low-pass mount mode, a drift beside a static torque on the same channel, a tone beside
+#: a crosstalk) or where one hides the other (a line beside a crosstalk on the same channel)
+PROBE3_PAIRS = [
+    ("servo_dead_40ms", "mount_mode_4.5Hz"),
+    ("flow_tone_2Hz_5pc", "crosstalk_tx_from_fz_2pc"),
+    ("drift_tx", "static_hip_torque"),
+    ("servo_cmd_lag_25ms", "tone_3Hz_8pc"),
+    ("xt_tz_from_fx_3pc", "vib_5Hz_tz"),
+    ("servo_dead_80ms", "drift_fy"),
+    ("mode_7Hz", "servo_dead_20ms"),
+]
+
 PAIRS = [
     ("servo_dead_60ms", "drift_fz_1.5mN_per_s"),
     ("crosstalk_fz_from_fy_3pc", "mount_mode_4.5Hz"),
@@ -180,7 +203,8 @@ PAIRS = [
 
 def case(name: str) -> Case:
     """A single case by name."""
-    return next(c for c in SINGLES + COMMAND_SERVOS + TONE_RANGE + PROBE + PROBE2 if c.name == name)
+    return next(c for c in SINGLES + COMMAND_SERVOS + TONE_RANGE + PROBE + PROBE2 + PROBE3_SINGLES
+                if c.name == name)
 
 
 def pair(a: str, b: str) -> Case:
@@ -188,6 +212,11 @@ def pair(a: str, b: str) -> Case:
     ca, cb = case(a), case(b)
     return Case(f"{a}+{b}", lambda: ca.plants() + cb.plants(), {**ca.expected, **cb.expected},
                 {**ca.family, **cb.family}, ca.lines + cb.lines, ca.sensor_side and cb.sensor_side)
+
+
+def probe3() -> list[Case]:
+    """The third probe: its pairs, then its one single (the 4 Hz / 3 % tone)."""
+    return [pair(a, b) for a, b in PROBE3_PAIRS] + [case("tone_4Hz_3pc")]
 
 
 def all_cases(with_reference: bool = True) -> list[Case]:

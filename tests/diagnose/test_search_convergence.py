@@ -75,3 +75,70 @@ def test_a_claimed_effects_unconverged_final_search_reaches_the_diagnosis():
     out = _unsettled(final, [], config, notes)
     assert out == [f"the final search of servo_lag did not converge ({notes['servo_lag']})"]
     assert _unsettled(final, [], config, {}) == []
+
+
+def _coordinate_round(ridge: float):
+    """A stand-in for one refinement round: exact coordinate minimisation of the test's own quadratic.
+
+    With u = log tau - log 0.04 and w = log zeta - log 0.08, f = (u - ridge w)^2 + w^2 / 4 has its
+    minimum at 40 ms, 0.08. With ``ridge`` 1 its valley runs diagonally and each round of
+    one-at-a-time searches closes only a fifth of the way (as a dead time beside a mount mode
+    crawls); with ``ridge`` 0 one round lands.
+    """
+    import numpy as np
+
+    calls = []
+
+    def round_(s, problem, config, coefs, names, notes):
+        calls.append(1)
+        nl = {a.name: dict(a.nl) for a in config.actives}
+        w = np.log(nl["structural_resonance"]["zeta"] / 0.08)
+        u = ridge * w                                   # tau given zeta
+        w = ridge * u / (ridge ** 2 + 0.25)             # zeta given tau
+        nl["servo_lag"]["tau_s"], nl["structural_resonance"]["zeta"] = 0.04 * float(np.exp(u)), 0.08 * float(np.exp(w))
+        out = Configuration([Active(a.effect, nl[a.name]) for a in config.actives])
+        return out, SimpleNamespace(coefs=lambda: {})
+
+    return round_, calls
+
+
+def test_refinement_rounds_run_until_trading_values_settle_and_flag_them_otherwise(monkeypatch):
+    """Two searched effects on a diagonal valley: still moving after the last round, both are flagged."""
+    import workbench.diagnose.selection_finish as F
+    from workbench.diagnose.library import make_effect
+
+    lag, mode = make_effect("servo_lag"), make_effect("structural_resonance")
+    start = Configuration([Active(lag, {"tau_s": 0.03, "dead_share": 1.0}),
+                           Active(mode, {"f_n_hz": 4.5, "zeta": 0.16})])
+    problem = SimpleNamespace(search_notes={})
+    round_, calls = _coordinate_round(ridge=1.0)
+    monkeypatch.setattr(F, "_refine_round", round_)
+    config, _ = F.refine(SelectionSettings(refine_rounds=3), problem, start, {}, [], None)
+    assert len(calls) == 3
+    assert set(problem.search_notes) == {"servo_lag", "structural_resonance"}
+    assert "last of 3 refinement rounds" in problem.search_notes["structural_resonance"]
+    assert "trade off with servo_lag" in problem.search_notes["structural_resonance"]
+    # a valley across the axes: the second round moves nothing, the loop stops, nothing is flagged
+    problem = SimpleNamespace(search_notes={})
+    round_, calls = _coordinate_round(ridge=0.0)
+    monkeypatch.setattr(F, "_refine_round", round_)
+    config, _ = F.refine(SelectionSettings(refine_rounds=3), problem, start, {}, [], None)
+    assert len(calls) == 2 and problem.search_notes == {}
+    assert abs(config.nl_values()["structural_resonance.zeta"] - 0.08) < 1e-9
+
+
+def test_one_searched_effect_is_refined_in_one_round(monkeypatch):
+    import workbench.diagnose.selection_finish as F
+    from workbench.diagnose.library import make_effect
+
+    calls = []
+
+    def round_(s, problem, config, coefs, names, notes):
+        calls.append(1)
+        return config, SimpleNamespace(coefs=lambda: {})
+
+    monkeypatch.setattr(F, "_refine_round", round_)
+    config = Configuration([Active(make_effect("servo_lag"), {"tau_s": 0.03, "dead_share": 1.0}),
+                            Active(make_effect("lift"), {})])
+    F.refine(SelectionSettings(refine_rounds=4), SimpleNamespace(search_notes={}), config, {}, [], None)
+    assert len(calls) == 1

@@ -25,14 +25,67 @@ from workbench.diagnose.selection_search import parabola, search
 
 
 def refine(s: SelectionSettings, problem, config, coefs, names, current):
-    """Re-search each nonlinear parameter with the others at their final values (one round).
+    """Re-search each nonlinear parameter with the others at their final values, in rounds until they settle.
 
     Always with the model itself (no lagged-output surrogate) and the whole design (no effect's faster
-    search criterion): these are the reported values.
+    search criterion): these are the reported values. One effect with searched values is exact in
+    one round (its linear terms are refitted at every evaluation). Two or more are searched one at a
+    time, which settles slowly where they trade off: with the EF as base, one round left a 40 ms dead
+    time beside a 4.5 Hz, zeta 0.08 mount mode at 36 ms and zeta 0.117; a second round moved them to
+    39 ms and 0.094 (training error 3.7 % lower), and further rounds went on along the ridge past the
+    truth (0.077, 0.064, 0.055; 41, 43, 44 ms), each lowering the error less (measured 30 Nov 2026):
+    the base model's misfit, not the data's noise, sets where it ends. So up to
+    ``refine_rounds`` rounds run while a value moves more than ``REFINE_MOVE`` (log units, or that share
+    of the bounds for a parameter searched on a linear scale); values still moving after the last
+    round did not settle, and the effects that moved get a note the diagnosis reports as not converged.
     """
+    searched = [a.name for a in config.actives if a.effect.search]
+    notes = problem.search_notes  # the diagnosis reports the claimed effects' unconverged final searches
+    config, current = _refine_round(s, problem, config, coefs, names, notes)
+    moved: dict[str, str] = {}
+    for _ in range(1, max(1, s.refine_rounds) if len(searched) > 1 else 1):
+        before = config
+        config, current = _refine_round(s, problem, config, current.coefs(), names, notes)
+        moved = _round_moves(before, config)
+        if not moved:
+            break
+    for name, text in moved.items():
+        partners = ", ".join(n for n in searched if n != name)
+        notes[name] = (f"its values still moved in the last of {s.refine_rounds} refinement rounds ({text}): "
+                       f"they trade off with {partners}")
+    return config, current
+
+
+#: a searched value that moves less than this in a refinement round has settled: in log units (0.02 is 2 %)
+#: for a parameter searched on a log scale, as a share of its bounds for one searched on a linear scale
+REFINE_MOVE = 0.02
+
+
+def _round_moves(before, after) -> dict[str, str]:
+    """Per effect, what one refinement round moved beyond ``REFINE_MOVE`` ('name old -> new, ...')."""
+    was = {a.name: a for a in before.actives}
+    out = {}
+    for a in after.actives:
+        if not a.effect.search or a.name not in was:
+            continue
+        moves = []
+        for p in a.effect.search:
+            old, new = float(was[a.name].nl.get(p.name, np.nan)), float(a.nl.get(p.name, np.nan))
+            if p.log and old > 0 and new > 0:
+                far = abs(np.log(new / old)) > REFINE_MOVE
+            else:
+                far = abs(new - old) > REFINE_MOVE * (p.bounds[1] - p.bounds[0])
+            if far:
+                moves.append(f"{p.name} {old:.3g} -> {new:.3g}")
+        if moves:
+            out[a.name] = ", ".join(moves)
+    return out
+
+
+def _refine_round(s: SelectionSettings, problem, config, coefs, names, notes: dict):
+    """One round of :func:`refine`: each searched effect in turn, then the fit; returns (config, fit)."""
     surrogate = getattr(problem, "surrogate_search", False)
     problem.surrogate_search = False
-    notes = problem.search_notes  # the diagnosis reports the claimed effects' unconverged final searches
     try:
         for a in list(config.actives):
             if not a.effect.search:
@@ -68,8 +121,7 @@ def refine(s: SelectionSettings, problem, config, coefs, names, current):
                 notes.pop(a.name, None)
     finally:
         problem.surrogate_search = surrogate
-    current = problem.fit(config, coefs, names)
-    return config, current
+    return config, problem.fit(config, coefs, names)
 
 
 def _dropped_row(a: Active, note: str, test: dict | None = None, max_gain: float = 0.0, digits: int = 3) -> dict:

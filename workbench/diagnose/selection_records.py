@@ -33,6 +33,9 @@ class SelectionSettings:
     tone_window_hz: float = 0.12
     #: Nelder-Mead evaluations per nonlinear parameter in refinements
     refine_evals: int = 12
+    #: rounds of the final refinement when two or more effects have searched values (each searched in
+    #: turn, which settles slowly where they trade off); values still moving after the last are flagged
+    refine_rounds: int = 2
     #: tone candidates tried per step (the strongest residual lines)
     max_peaks: int = 2
     #: half-width (log units) of a warm-started 1-D search around the last optimum
