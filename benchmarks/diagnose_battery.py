@@ -10,6 +10,7 @@ diagnoses it; scores with ``tests/diagnose/battery.py``.
     .venv/bin/python benchmarks/diagnose_battery.py --mode noref --cases probe   # effects the battery does not plant
     .venv/bin/python benchmarks/diagnose_battery.py --mode noref --cases probe2  # the ends of issue 13's ranges
     .venv/bin/python benchmarks/diagnose_battery.py --mode noref --cases probe3  # pairs that trade off
+    .venv/bin/python benchmarks/diagnose_battery.py --mode noref --cases probe4  # pairs of the issue's rig effects
 
 Campaigns are cached under build/bench/diagnose (gitignored). Not part of ``make bench`` (about a
 minute per case and base on an idle two-core machine).
@@ -31,7 +32,7 @@ def main() -> int:
     ap.add_argument("--model", default="ef", help="base model(s), comma-separated: ef, lstm, ... (default ef)")
     ap.add_argument("--mode", default="both", choices=["ref", "noref", "both"],
                     help="with --reference (a clean campaign of the same rig), without, or both")
-    ap.add_argument("--cases", help="comma-separated case names, or 'probe', 'probe2', 'probe3' (default: the battery's)")
+    ap.add_argument("--cases", help="comma-separated case names, or 'probe', 'probe2', 'probe3', 'probe4' (default: the battery's)")
     ap.add_argument("--sets", type=int, default=12,
                     help="parameter sets per campaign (x3 flow speeds; 1-64, the first 12 are the CI tests')")
     ap.add_argument("--root", default=str(ROOT / "build" / "bench" / "diagnose"))
@@ -59,11 +60,11 @@ def main() -> int:
     for model in args.model.split(","):
         for with_ref in modes:
             cases = B.all_cases(with_ref)
-            if args.cases in ("probe", "probe2", "probe3"):  # the generalisation probes (battery.PROBE*)
-                cases = {"probe": B.PROBE, "probe2": B.PROBE2, "probe3": B.probe3()}[args.cases]
+            if args.cases in ("probe", "probe2", "probe3", "probe4"):  # the generalisation probes (battery.PROBE*)
+                cases = {"probe": B.PROBE, "probe2": B.PROBE2, "probe3": B.probe3(), "probe4": B.probe4()}[args.cases]
                 cases = list(cases)
             elif args.cases:  # in the order given (pairs as a+b)
-                by_name = {c.name: c for c in B.all_cases(False) + B.PROBE + B.PROBE2 + B.probe3()}
+                by_name = {c.name: c for c in B.all_cases(False) + B.PROBE + B.PROBE2 + B.probe3() + B.probe4()}
                 unknown = [n for n in args.cases.split(",") if n not in by_name]
                 if unknown:
                     ap.error(f"unknown case(s) {', '.join(unknown)}; known: {', '.join(by_name)}")

@@ -166,9 +166,12 @@ def _claim_faults(rep: EffectReport, effect, s: DiagnoseSettings) -> str | None:
     """Why a claimed effect may not stand once its final intervals are known (None when it may)."""
     from workbench.diagnose.selection import magnitude_intervals
 
-    spans = magnitude_intervals(rep.params, rep.stderr, s.selection.interval_z, effect.location_params)
+    spans = magnitude_intervals(rep.params, rep.stderr, s.selection.interval_z, effect.location_params,
+                                effect.negligible_of)
     if spans and all(spans.values()):
-        return f"every magnitude parameter's 95 % interval spans zero ({', '.join(spans)})"
+        bands = sorted({effect.negligible_of(k) for k in spans} - {0.0})
+        band = f" or its negligible band (|x| <= {', '.join(f'{b:g}' for b in bands)})" if bands else ""
+        return f"every magnitude parameter's 95 % interval spans zero{band} ({', '.join(spans)})"
     return effect.refusal(rep.params, s.selection)
 
 

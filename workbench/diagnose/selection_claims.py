@@ -217,12 +217,13 @@ def _implausible(c: Candidate) -> str | None:
     return None
 
 
-def magnitude_intervals(params: dict, stderr: dict, z: float = 1.96, location=None) -> dict[str, bool]:
+def magnitude_intervals(params: dict, stderr: dict, z: float = 1.96, location=None, negligible=None) -> dict[str, bool]:
     """Per magnitude parameter with a finite error: whether its interval ``value +- z se`` holds zero.
 
     ``location``: the effect's parameters that locate it rather than measure it
     (:attr:`~workbench.diagnose.effects.base.Effect.location_params`); None: those of every effect
-    in the table.
+    in the table. ``negligible``: name -> half-width of a band around zero the interval must clear
+    instead (:meth:`~workbench.diagnose.effects.base.Effect.negligible_of`); None: zero itself.
     """
     if location is None:
         from workbench.diagnose.library import location_params
@@ -235,7 +236,7 @@ def magnitude_intervals(params: dict, stderr: dict, z: float = 1.96, location=No
         se = stderr.get(k)
         if se is None or not np.isfinite(se) or not np.isfinite(v):
             continue
-        out[k] = abs(v) <= z * se
+        out[k] = abs(v) - z * se <= (negligible(k) if negligible is not None else 0.0)
     return out
 
 
@@ -257,11 +258,17 @@ def _spans_zero(c: Candidate, z: float) -> str | None:
             params, se = e.canonical_params(own, {}, cov, None)
         except (ValueError, ZeroDivisionError, KeyError):
             continue
-        spans = magnitude_intervals(params, se, z, e.location_params)
+        spans = magnitude_intervals(params, se, z, e.location_params, e.negligible_of)
         if spans and all(spans.values()):
             k = next(iter(spans))
-            return f"{e.name}: 95 % interval of {k} ({params[k]:.3g} +- {z * se[k]:.2g}) spans zero"
+            return f"{e.name}: 95 % interval of {k} ({params[k]:.3g} +- {z * se[k]:.2g}) {_reaches(e, k)}"
     return None
+
+
+def _reaches(effect, name: str) -> str:
+    """What an interval that is not clear reaches: zero, or the effect's negligible band around it."""
+    band = effect.negligible_of(name)
+    return f"reaches into the negligible band |{name}| <= {band:g}" if band > 0 else "spans zero"
 
 
 def _refused(c: Candidate, settings: SelectionSettings) -> str | None:

@@ -156,6 +156,9 @@ class Effect:
     surrogate_ok: bool = False
     #: physically plausible range of each canonical parameter (a fit outside absorbs something else)
     ranges: dict[str, tuple[float, float]] = {}
+    #: per magnitude parameter (a ``ranges``-style key or ``prefix*`` pattern), a size too small to claim: a
+    #: claim's interval must clear this band around zero, not only zero (:meth:`negligible_of`)
+    negligible: dict[str, float] = {}
     #: the effect changes what every other term sees (a servo's delay moves every force column): when
     #: it is acceptable at a step but another effect wins, the selection also follows the path that
     #: takes it there (a force effect taken first absorbs its misfit channel by channel)
@@ -272,6 +275,13 @@ class Effect:
         """The plausible range of canonical parameter ``name`` (a ``ranges`` key, or a ``prefix*`` pattern); None: any."""
         return self.ranges.get(name) or next((r for pat, r in self.ranges.items()
                                               if pat.endswith("*") and name.startswith(pat[:-1])), None)
+
+    def negligible_of(self, name: str) -> float:
+        """Half-width of the band around zero a claim's interval of ``name`` must clear (0: zero itself)."""
+        hit = self.negligible.get(name)
+        if hit is None:
+            hit = next((v for pat, v in self.negligible.items() if pat.endswith("*") and name.startswith(pat[:-1])), 0.0)
+        return float(hit)
 
     def implausible(self, params: dict) -> str | None:
         """Why the fitted canonical parameters are not this effect (None when they are plausible)."""
