@@ -63,11 +63,14 @@ class _Path:
     branches: list = field(default_factory=list)
     #: whether the round budget (``max_effects``) ran out before the path stopped by itself
     budget_spent: bool = False
+    #: per line's effect (``needs_peak``), the frequencies it was acceptable at in an earlier round
+    lines: dict = field(default_factory=dict)
 
     def copy(self) -> "_Path":
         """An independent copy (fits are shared: they are not changed in place)."""
         return _Path(self.config.copy(), list(self.names), self.current, dict(self.coefs), list(self.steps),
-                     list(self.table), {k: dict(v) for k, v in self.last_nl.items()}, self.rounds, [])
+                     list(self.table), {k: dict(v) for k, v in self.last_nl.items()}, self.rounds, [],
+                     lines={k: list(v) for k, v in self.lines.items()})
 
 
 @dataclass
@@ -165,11 +168,13 @@ class StepwiseSelection:
             self._release(problem, path)
             config, names, current, coefs = path.config, path.names, path.current, path.coefs
             remaining = [e for e in library if e.name not in config.names()]
-            cands = candidates(s, problem, config, coefs, names, remaining, current, peaks_of, path.last_nl, progress)
+            cands = candidates(s, problem, config, coefs, names, remaining, current, peaks_of, path.last_nl, progress,
+                               kept_lines=path.lines)
             if not cands:
                 break
             cands, table, level = judge_all(s, problem, cands, coefs, current, config, plausible)
             path.table = table
+            _keep_lines(path, cands)
             best = pick(s, problem, cands, table, coefs, current, config, level, plausible)
             if best is None and s.held_fallback:
                 best = self._held(problem, cands, table, coefs, current, config, level, plausible)
@@ -361,6 +366,16 @@ class StepwiseSelection:
         rs = problem.campaign.train_sets[0]
         d = problem.design(rs, Configuration(), {})
         return d.predict({}), rs.fit
+
+
+def _keep_lines(path: _Path, cands) -> None:
+    """Remember the lines each line's effect was acceptable at this round (in place; see ``candidates``)."""
+    for c in cands:
+        if c.ok and c.partner is None and c.effect.needs_peak:
+            f0 = float(c.active.nl[c.effect.search[0].name])
+            kept = path.lines.get(c.effect.name, [])
+            if all(abs(f0 - f) > 1e-6 for f in kept):
+                path.lines[c.effect.name] = [*kept, f0]
 
 
 #: largest change of a crosstalk's or drift's entries in the last refit for them to count as settled
