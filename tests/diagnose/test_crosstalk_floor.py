@@ -34,7 +34,10 @@ def test_an_entry_clear_of_zero_but_not_of_the_band_is_not_claimed():
 def test_the_band_is_the_effects_own_option_and_other_effects_keep_zero():
     xt = make_effect("loadcell_crosstalk")
     assert _claim_faults(_report(0.0067, 0.0013), xt, DiagnoseSettings()) is None
-    assert make_effect("loadcell_crosstalk").from_options({"floor": 0.002}).negligible_of("x_tx_fz") == 0.002
+    assert make_effect("loadcell_crosstalk").from_options({"floor": 0.002}).negligible_of("x_ty_tx") == 0.002
+    # a torque read from a force is a lever arm (m), a force from a torque a share per metre: no share floor
+    assert make_effect("loadcell_crosstalk").from_options({"floor": 0.002}).negligible_of("x_tx_fz") == 0.0
+    assert make_effect("loadcell_crosstalk").from_options({"floor": 0.002}).negligible_of("x_fz_tx") == 0.0
     drift = make_effect("sensor_drift")
     assert drift.negligible_of("rate_fz_n_per_s") == 0.0
     # without a band the interval test is the plain one: zero inside or not
@@ -53,4 +56,4 @@ def test_a_lab_sets_the_band_in_the_pipeline_files_library_options():
 
     rng = np.random.default_rng(0)
     pred = rng.normal(size=(200, 6))
-    assert xt.configured(pred, np.ones(200, bool)).negligible_of("x_tx_fz") == 0.005
+    assert xt.configured(pred, np.ones(200, bool)).negligible_of("x_fy_fz") == 0.005

@@ -49,13 +49,20 @@ class LoadcellCrosstalk(Effect):
     def negligible_of(self, name: str) -> float:
         """An entry's interval must clear ``floor`` (option; default 0: zero itself), not only zero.
 
+        Only entries between two forces or two torques, whose values are shares.
+
         A lab that knows its calibration's accuracy may set it: an entry below it is not a
         correction the lab could apply. Not the default, measured 30 Nov 2026 (EF, no reference): a
         floor of 0.005 removed the 0.0067 fz-from-fy entry (interval 0.0041-0.0093) that a 60 ms servo
         dead time's remainder leaves on the demo campaign, which the clean copy does not claim, but
         it also removed the second probe's planted 1 % fy-from-fz crosstalk, within the issue's range.
         """
-        return self.floor if name.startswith("x_") else 0.0
+        if not name.startswith("x_"):
+            return 0.0
+        to, frm = name.split("_")[1:3]
+        # the floor is a share: only for an entry between two forces or two torques (a torque read
+        # from a force is a lever arm in metres, a force from a torque a share per metre)
+        return self.floor if to[0] == frm[0] else 0.0
 
     @classmethod
     def from_options(cls, options: dict | None = None) -> "LoadcellCrosstalk":  # noqa: D102
