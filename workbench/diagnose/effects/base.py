@@ -156,9 +156,6 @@ class Effect:
     surrogate_ok: bool = False
     #: physically plausible range of each canonical parameter (a fit outside absorbs something else)
     ranges: dict[str, tuple[float, float]] = {}
-    #: per magnitude parameter (a ``ranges``-style key or ``prefix*`` pattern), a size too small to claim: a
-    #: claim's interval must clear this band around zero, not only zero (:meth:`negligible_of`)
-    negligible: dict[str, float] = {}
     #: the effect changes what every other term sees (a servo's delay moves every force column): when
     #: it is acceptable at a step but another effect wins, the selection also follows the path that
     #: takes it there (a force effect taken first absorbs its misfit channel by channel)
@@ -277,11 +274,12 @@ class Effect:
                                               if pat.endswith("*") and name.startswith(pat[:-1])), None)
 
     def negligible_of(self, name: str) -> float:
-        """Half-width of the band around zero a claim's interval of ``name`` must clear (0: zero itself)."""
-        hit = self.negligible.get(name)
-        if hit is None:
-            hit = next((v for pat, v in self.negligible.items() if pat.endswith("*") and name.startswith(pat[:-1])), 0.0)
-        return float(hit)
+        """Half-width of the band around zero a claim's interval of magnitude parameter ``name`` must clear.
+
+        0 (the default): zero itself. An effect whose sizes have a floor below which no claim means
+        anything overrides it (the crosstalk's option ``floor``).
+        """
+        return 0.0
 
     def implausible(self, params: dict) -> str | None:
         """Why the fitted canonical parameters are not this effect (None when they are plausible)."""
