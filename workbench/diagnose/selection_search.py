@@ -133,10 +133,22 @@ def _refine_locally(s: SelectionSettings, objective, params, best: list, grids: 
         if not res.success:
             return out, f"{pnames[0]}: the 1-D search ran out of its {s.refine_evals} evaluations"
         return out, None
-    # the simplex stays inside the bounds (scipy clips every trial point): outside them the clipped
-    # objective is flat, and a simplex let out there wandered until its evaluations ran out (measured: 17
-    # of 24 searches of a servo case, a dead-time share held at 0 or 1). It stops once it spans under a
-    # third of SIMPLEX_SPAN (an SSE never meets a ``fatol``, so that test is off).
+    return _nelder_mead(s, objective, pnames, logs, x0, lo, hi, from_x)
+
+
+#: a Nelder-Mead simplex narrower than this in (log) coordinates has converged (1 % of a log-scaled value)
+SIMPLEX_SPAN = 0.01
+
+
+def _nelder_mead(s: SelectionSettings, objective, pnames: list[str], logs: list[bool], x0: np.ndarray,
+                 lo: np.ndarray, hi: np.ndarray, from_x) -> tuple[list[float], str | None]:
+    """:func:`_refine_locally`'s Nelder-Mead for two or more parameters, in (log) coordinates.
+
+    The simplex stays inside the bounds (scipy clips every trial point): outside them the clipped
+    objective is flat, and a simplex let out there wandered until its evaluations ran out (measured: 17
+    of 24 searches of a servo case, a dead-time share held at 0 or 1). It stops once it spans under a
+    third of ``SIMPLEX_SPAN`` (an SSE never meets a ``fatol``, so that test is off).
+    """
     x0 = np.clip(x0, lo, hi)
     simplex = [x0]
     for i in range(len(x0)):
@@ -145,7 +157,8 @@ def _refine_locally(s: SelectionSettings, objective, params, best: list, grids: 
             step = -step
         simplex.append(x0 + np.eye(len(x0))[i] * step)
     maxfev = s.refine_evals * len(x0) * 2
-    res = optimize.minimize(lambda x: objective(from_x(x)), x0, method="Nelder-Mead", bounds=list(zip(lo, hi)),
+    res = optimize.minimize(lambda x: objective(from_x(x)), x0, method="Nelder-Mead",
+                            bounds=list(zip(lo, hi, strict=True)),
                             options={"initial_simplex": np.clip(np.array(simplex), lo, hi), "maxfev": maxfev,
                                      "xatol": SIMPLEX_SPAN / 3, "fatol": np.inf})
     sim = np.clip(res.final_simplex[0], lo, hi)
@@ -154,10 +167,6 @@ def _refine_locally(s: SelectionSettings, objective, params, best: list, grids: 
         return from_x(res.x), (f"{', '.join(pnames)}: Nelder-Mead's simplex still spans {span:.2g} (log) units after "
                                f"its {maxfev} evaluations")
     return from_x(res.x), None
-
-
-#: a Nelder-Mead simplex narrower than this in (log) coordinates has converged (1 % of a log-scaled value)
-SIMPLEX_SPAN = 0.01
 
 
 def parabola(problem, config, coefs, names, effect, start: dict) -> dict:

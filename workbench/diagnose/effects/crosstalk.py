@@ -251,8 +251,10 @@ class LoadcellCrosstalk(Effect):
 
 def _others(rs, resid: np.ndarray, degree: int) -> list[np.ndarray]:
     """Per reading channel i, the residual's other channels times each run's flow powers, (B, T, 5 (degree + 1))."""
-    powers = _flow_powers(rs, resid.shape[0], degree)[..., None]  # (d, B, 1, 1)
-    return [np.concatenate(list(np.delete(resid, i, axis=-1)[None] * powers), axis=-1) for i in range(6)]
+    scaled = resid[None] * _flow_powers(rs, resid.shape[0], degree)[..., None]  # (d, B, T, 6)
+    lead = resid.shape[:-1]
+    # columns ordered by power, then by channel (power d, k-th other channel at d * 5 + k)
+    return [np.moveaxis(scaled[..., [k for k in range(6) if k != i]], 0, -2).reshape(*lead, -1) for i in range(6)]
 
 
 def _flow_powers(rs, n: int, degree: int) -> np.ndarray:
