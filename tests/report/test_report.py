@@ -93,11 +93,16 @@ def test_mlflow_links_cover_every_pipeline_experiment_in_flow_order(tmp_path):
             mlflow.set_experiment(exp)
             with mlflow.start_run(run_name=run):
                 mlflow.log_metric("x", 1.0)
+        # a pruned trial ends KILLED, tagged as tune tags it: the link says pruned, not killed
+        mlflow.set_experiment("fed-lstm-tune")
+        mlflow.start_run(run_name="trial 1")
+        mlflow.set_tag("state", "pruned")
+        mlflow.end_run("KILLED")
     finally:
         mlflow.set_tracking_uri(None)
     sec = report.mlflow_section(uri, "http://127.0.0.1:5055")
     labels = [label for label, _ in sec.links]
-    assert labels == ["fed-lstm: lstm 64x2 L32 (finished)", "fed-lstm-tune: trial 0 (finished)",
+    assert labels == ["fed-lstm: lstm 64x2 L32 (finished)", "fed-lstm-tune: trial 1 (pruned)", "fed-lstm-tune: trial 0 (finished)",
                       "optimize: straight-ef (finished)", "my-own: by hand (finished)"]
     assert all(url.startswith("http://127.0.0.1:5055/#/experiments/") for _, url in sec.links)
 

@@ -22,7 +22,9 @@ def mlflow_section(tracking_uri: str | None, ui_url: str) -> Section:
         for exp in exps:
             runs = client.search_runs([exp.experiment_id], order_by=["attributes.start_time DESC"], max_results=5)
             for r in runs:
-                label = f"{exp.name}: {r.info.run_name} ({r.info.status.lower()})"
+                # a pruned Optuna trial ends KILLED, tagged state=pruned (workbench.learn.tune): say which
+                state = r.data.tags.get("state") if r.info.status == "KILLED" else None
+                label = f"{exp.name}: {r.info.run_name} ({state or r.info.status.lower()})"
                 sec.links.append((label, f"{ui_url}/#/experiments/{exp.experiment_id}/runs/{r.info.run_id}"))
     except Exception as exc:  # a report without links is still a report
         sec.paragraphs.append(f"MLflow store not readable: {type(exc).__name__}: {exc}")
