@@ -62,6 +62,12 @@ class SelectionSettings:
     #: (``Effect.seed``: a servo's delay at the runs' onsets), is also tried from the first step on; that
     #: path wins only when its final held-out fit beats the others' (significant at ``alpha``)
     seeded_branches: bool = True
+    #: a runner-up whose held-out log-likelihood ratio comes within ``tie_ratio`` of the step's pick (and shares
+    #: none of its effects) is a near tie: the greedy choice between them is noise. The first ``tie_branches``
+    #: near ties of the greedy path are accepted in a path of their own, which wins only when its final
+    #: held-out fit beats the others' (significant at ``alpha``); a branch behind after its steps is not finished
+    tie_branches: int = 1
+    tie_ratio: float = 0.98
     #: when no candidate can be claimed at a step, try the refused ones with amplitudes fitted past a zero
     #: bound held at it (a circulatory lag's fast share; ``StepwiseSelection._held``)
     held_fallback: bool = True
@@ -129,6 +135,8 @@ class SelectionResult:
     left_at_budget: list[dict] = field(default_factory=list)
     #: whether the round budget ran out before the selection stopped by itself
     budget_spent: bool = False
+    #: the near ties the path of this result passed over (``tie_branches``), for the selection to follow
+    near_ties: list = field(default_factory=list, repr=False)
 
 
 def record_row(c: Candidate) -> dict:
