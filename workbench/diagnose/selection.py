@@ -204,8 +204,7 @@ class StepwiseSelection:
                         and c.effect.name not in mine | seen):
                     path.branches.append(_Branch(path.copy(), c, level))
             self._near_ties(path, cands, best, level)
-            alternatives = [c.label for c in cands if c is not best and not {e.name for e in c.effects} & mine
-                            and c.test["llr"] >= s.ambiguity_ratio * best.test["llr"] and c.test["llr"] > 0]
+            alternatives = [c.label for c in _runners_up(cands, best, s.ambiguity_ratio) if c.test["llr"] > 0]
             rivals = ambiguous(best, cands, level, hac, s.alpha)
             self._accept(problem, path, best, table, alternatives, rivals)
             self._follow(problem, path, mine)
@@ -226,9 +225,7 @@ class StepwiseSelection:
         s = self.settings
         if len(path.ties) >= s.tie_branches or best.test["llr"] <= 0:
             return
-        mine = {e.name for e in best.effects}
-        rivals = [c for c in cands if c.ok and c is not best and not {e.name for e in c.effects} & mine
-                  and c.test["llr"] >= s.tie_ratio * best.test["llr"]]
+        rivals = [c for c in _runners_up(cands, best, s.tie_ratio) if c.ok]
         if rivals:
             path.ties.append(_Branch(path.copy(), max(rivals, key=lambda c: c.test["llr"]), level))
 
@@ -403,6 +400,13 @@ class StepwiseSelection:
         rs = problem.campaign.train_sets[0]
         d = problem.design(rs, Configuration(), {})
         return d.predict({}), rs.fit
+
+
+def _runners_up(cands, best: Candidate, ratio: float) -> list:
+    """Candidates other than ``best``, sharing none of its effects, whose held-out LLR reaches ``ratio`` of its."""
+    mine = {e.name for e in best.effects}
+    return [c for c in cands if c is not best and not {e.name for e in c.effects} & mine
+            and c.test["llr"] >= ratio * best.test["llr"]]
 
 
 def _keep_lines(path: _Path, cands) -> None:

@@ -64,7 +64,7 @@ class SelectionSettings:
     seeded_branches: bool = True
     #: a runner-up whose held-out log-likelihood ratio comes within ``tie_ratio`` of the step's pick (and shares
     #: none of its effects) is a near tie: the greedy choice between them is noise. The first ``tie_branches``
-    #: near ties of the greedy path are accepted in a path of their own, which wins only when its final
+    #: near ties of the path that won (greedy or a branch; one level) are accepted in a path of their own, which wins only when its final
     #: held-out fit beats the others' (significant at ``alpha``); a branch behind after its steps is not finished
     tie_branches: int = 1
     tie_ratio: float = 0.98
