@@ -322,7 +322,7 @@ def _print_claims(d) -> None:
 
     for e in d.effects:
         params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items() if isinstance(v, float))
-        info(f"  effect {e.name}: {params} (held-out error -{e.heldout_mse_reduction:.0%})")
+        info(f"  effect {e.name}: {params} (held-out error {-e.heldout_mse_reduction:+.0%})")
     for u in d.unexplained:
         f = f" at {u.frequency_hz:.2f} Hz" if u.frequency_hz is not None else ""
         info(f"  unexplained {u.kind}{f} in {', '.join(u.channels)}")

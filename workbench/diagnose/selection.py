@@ -340,8 +340,9 @@ class StepwiseSelection:
         for e in best.effects:
             member = Candidate(e, Active(e, dict(best.active.nl) if e is best.effect else {}), best.config,
                                best.names, best.fit, best.test, best.gain_c, best.profile, True, best.note)
+            other = next((o.name for o in best.effects if o is not e), None)
             path.steps.append(Step(member, before_c, heldout_mse(path.current), table, alternatives,
-                                   [n for n in ambiguous if n != e.name]))
+                                   [n for n in ambiguous if n != e.name], partner=other))
 
     def _force(self, problem, branch: "_Branch", plausible) -> "_Path | None":
         """The branch's path with its passed-over effect accepted (judged with the model itself; None if it fails)."""

@@ -119,6 +119,8 @@ class Step:
     alternatives: list[str]
     #: effects the held-out data cannot tell apart from this one (winner vs runner-up not significant)
     ambiguous_with: list[str] = field(default_factory=list)
+    #: the effect claimed together with this one as a pair (each hid the other alone); None: claimed alone
+    partner: str | None = None
 
 
 @dataclass
