@@ -186,8 +186,8 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
             hint = act.effect.hint(ev_before, params)
             alt = f"; {', '.join(step.alternatives)} explained nearly as much" if step.alternatives else ""
             other = next((n for n in unit if n != name), None)
-            what = (f"adding {name} with {other} (claimed as a pair: neither was significant alone) removes"
-                    if other else f"adding {name} removes")
+            what = (f"adding {name} with {other} (claimed as a pair: together they gain at least "
+                    f"{s.selection.pair_margin:g}x what either gains alone) removes" if other else f"adding {name} removes")
             sentence = (f"{hint + '; ' if hint else ''}{what} {step_rel.max():.0%} of the held-out "
                         f"{best_c} error (held-out t = {test['t']:.1f} over {test['n_blocks']} blocks){alt}.")
             if other is not None:
