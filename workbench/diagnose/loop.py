@@ -148,6 +148,8 @@ def _diagnose(frame, model, model_spec, settings, library, selection, lowpass, p
             "parameters; diagnosing what changed")
     say(f"{len(campaign.runs)} runs ({int(campaign.heldout.sum())} held out); fitting the model's residual")
     problem = Problem(campaign, model, lowpass, s.fit)
+    if problem.surrogate_search:
+        say(f"searches over input effects lag the model's output ({problem.surrogate_reason or 'fit.surrogate_search'})")
     base_fit = problem.fit(Configuration(), names=[])
     res_before = run_residuals(problem, Configuration(), base_fit)
     ev_before = analyse(res_before, s.evidence, cutoff, model_force=[r.predicted for r in res_before],
