@@ -48,7 +48,7 @@ def _motion(b=2, t=200):
 def test_a_window_net_uses_the_surrogate_whatever_its_timing():
     for us in (1.0, 39.0, 41.0, 500.0):
         on, why = expensive(WindowNet(), us, 40.0)
-        assert on and "window net (32 steps" in why
+        assert on and "window net, 32 steps" in why
     assert expensive(Wrapper(WindowNet()), 1.0, 40.0)[0]
     assert expensive(Wrapper(Wrapper(WindowNet())), 1.0, 40.0)[0]
 

@@ -74,7 +74,7 @@ def expensive(model, us_per_tick: float, limit_us: float) -> tuple[bool, str]:
             return own, f"{type(seen).__name__}.expensive is {own}"
         window = getattr(seen, "seq_len", None)
         if isinstance(window, int) and window > 1:
-            return True, f"a window net ({window} steps for every tick it predicts)"
+            return True, f"a window net, {window} steps for every tick it predicts"
         inner = getattr(seen, "base", None)
         if inner is None or inner is seen or not hasattr(inner, "wrench"):
             break
