@@ -72,3 +72,15 @@ def test_the_timing_is_the_fastest_of_three_runs():
 
     us = _us_per_tick(Slow(EmpiricalFormula()), _motion())
     assert len(calls) == 3 and us > 0
+
+
+def test_batches_shrink_for_a_window_net_by_the_same_rule():
+    from workbench.diagnose.data import DataSettings
+    from workbench.diagnose.loop_threads import _chunks_for
+
+    data = DataSettings()
+    assert data.chunk_runs > 12
+    # the stand-in window net answers in microseconds: timed, it would keep the large batches
+    assert _chunks_for(WindowNet(), data).chunk_runs == 12
+    assert _chunks_for(Declared(), data).chunk_runs == data.chunk_runs
+    assert _chunks_for(EmpiricalFormula(), data).chunk_runs == data.chunk_runs

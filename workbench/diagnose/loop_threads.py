@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from workbench.diagnose.data import DataSettings
-from workbench.diagnose.problem import FitSettings
+from workbench.diagnose.problem import FitSettings, expensive
 
 
 def one_blas_thread():
@@ -73,6 +73,7 @@ def _chunks_for(model, data: DataSettings) -> DataSettings:
     except Exception:  # noqa: BLE001 - a model that cannot run a probe is diagnosed as configured
         return data
     us = 1e6 * (time.perf_counter() - t0) / (2 * n)
-    if us > FitSettings().expensive_us_per_tick and data.chunk_runs > 12:
+    # the same rule as the searches' surrogate (problem.expensive): a window net is expensive whatever the load
+    if expensive(model, us, FitSettings().expensive_us_per_tick)[0] and data.chunk_runs > 12:
         return dataclasses.replace(data, chunk_runs=12)
     return data
