@@ -63,7 +63,7 @@ def expensive(model, us_per_tick: float, limit_us: float) -> tuple[bool, str]:
     wrapping another (``base``: an augmented model) as its base. Only a model that says none of these is
     timed against ``limit_us``. Measured (30 Nov 2026): the FED-LSTM cost 37-60 us a tick on this
     two-core machine against the 40 us limit, so the timed rule flipped with the load between cases of
-    one battery, and with it the searches (the exact model in every evaluation: 598 s for one case, 35-55
+    one battery, and with it the searches (the exact model in every evaluation: 598 s for one case, 16-54
     s for its neighbours with the surrogate) and the selection path (``follow_lookahead`` is off with the
     surrogate).
     """

@@ -119,7 +119,7 @@ class Step:
     alternatives: list[str]
     #: effects the held-out data cannot tell apart from this one (winner vs runner-up not significant)
     ambiguous_with: list[str] = field(default_factory=list)
-    #: the effect claimed together with this one as a pair (each hid the other alone); None: claimed alone
+    #: the effect claimed together with this one as a pair (the pair gained pair_margin x either alone); None: alone
     partner: str | None = None
 
 
