@@ -179,7 +179,7 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
             by_ch = np.where(m0 > 0, (heldout_mse(prev) - heldout_mse(f)) / np.maximum(m0, 1e-300), 0.0)
             chans = [c for c, g in zip(CHANNELS, step_rel, strict=False) if g >= s.report.channel_min_gain]
             act = next(a for a in config.actives if a.name == name)
-            params, se, own_notes = _params(act, coefs, cov, final, problem.campaign)
+            params, se, notes = _params(act, coefs, cov, final, problem.campaign)
             step = next(st for st in result.steps if st.candidate.effect.name == name)
             best_c = CHANNELS[int(np.argmax(step_rel))]
             reduction = float(by_ch.mean())
@@ -191,10 +191,9 @@ def _effect_reports(problem: Problem, result, base_fit: lsq.Fit, mse_before: dic
             sentence = (f"{hint + '; ' if hint else ''}{what} {step_rel.max():.0%} of the held-out "
                         f"{best_c} error (held-out t = {test['t']:.1f} over {test['n_blocks']} blocks){alt}.")
             if other is not None:
-                own_notes.append(f"claimed as a pair with {other}, the two together: its own share of the held-out "
+                notes.append(f"claimed as a pair with {other}, the two together: its own share of the held-out "
                                  f"error ({reduction:+.1%} on average over channels) is counted "
                                  f"{'before' if name == unit[0] else 'beside'} {other}")
-            notes = own_notes
             amb = [n for n in step.ambiguous_with if n != name]
             if amb:
                 notes.append(f"the held-out data cannot tell {name} from {', '.join(amb)} (the winner's held-out "

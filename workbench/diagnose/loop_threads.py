@@ -67,13 +67,17 @@ def _chunks_for(model, data: DataSettings) -> DataSettings:
     n = 256
     z = np.zeros((2, n))
     probe = LegMotion(1 / 65, z - 40.0, z + 40.0, z, z, z + 0.1, z, z)
-    t0 = time.perf_counter()
-    try:
+
+    def us_per_tick() -> float:
+        t0 = time.perf_counter()
         model.wrench(probe)
+        return 1e6 * (time.perf_counter() - t0) / (2 * n)
+
+    # the same rule as the searches' surrogate (problem.expensive): a window net is expensive whatever the load
+    try:
+        costly = expensive(model, us_per_tick, FitSettings().expensive_us_per_tick)[0]
     except Exception:  # noqa: BLE001 - a model that cannot run a probe is diagnosed as configured
         return data
-    us = 1e6 * (time.perf_counter() - t0) / (2 * n)
-    # the same rule as the searches' surrogate (problem.expensive): a window net is expensive whatever the load
-    if expensive(model, us, FitSettings().expensive_us_per_tick)[0] and data.chunk_runs > 12:
+    if costly and data.chunk_runs > 12:
         return dataclasses.replace(data, chunk_runs=12)
     return data

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -54,14 +55,14 @@ def _us_per_tick(model, probe: LegMotion, runs: int = 3) -> float:
     return 1e6 * best / max(probe.theta_h_deg.size, 1)
 
 
-def expensive(model, us_per_tick: float, limit_us: float) -> tuple[bool, str]:
+def expensive(model, us_per_tick: Callable[[], float], limit_us: float) -> tuple[bool, str]:
     """Whether searches over input effects should use the surrogate (``surrogate_search: auto``), and why.
 
     Decided by what the model is where it says, so that the same data give the same diagnosis on a busy
     machine and an idle one: a model's own ``expensive`` attribute (a plugin model may declare it); a
     window net (``seq_len`` > 1 recurrent steps for every tick it predicts: the FED-LSTM's 32); a model
     wrapping another (``base``: an augmented model) as its base. Only a model that says none of these is
-    timed against ``limit_us``. Measured (30 Nov 2026): the FED-LSTM cost 37-60 us a tick on this
+    timed (``us_per_tick()``, called only then) against ``limit_us``. Measured (30 Nov 2026): the FED-LSTM cost 37-60 us a tick on this
     two-core machine against the 40 us limit, so the timed rule flipped with the load between cases of
     one battery, and with it the searches (the exact model in every evaluation: 598 s for one case, 16-54
     s for its neighbours with the surrogate) and the selection path (``follow_lookahead`` is off with the
@@ -79,8 +80,8 @@ def expensive(model, us_per_tick: float, limit_us: float) -> tuple[bool, str]:
         if inner is None or inner is seen or not hasattr(inner, "wrench"):
             break
         seen = inner
-    timed = us_per_tick > limit_us
-    return timed, f"timed: {us_per_tick:.0f} us a tick against fit.expensive_us_per_tick {limit_us:g}"
+    us = us_per_tick()
+    return us > limit_us, f"timed: {us:.0f} us a tick against fit.expensive_us_per_tick {limit_us:g}"
 
 
 class Problem:
@@ -107,15 +108,13 @@ class Problem:
         m = campaign.train_sets[0].motion
         probe = LegMotion(m.dt_s, *(x[:2] for x in (m.theta_h_deg, m.theta_k_deg, m.omega_h_dps, m.omega_k_dps,
                                                      m.flow_speed_mps, m.alpha_h_dps2, m.alpha_k_dps2)))
-        #: the model's cost (microseconds per tick, the fastest of three runs on two runs' ticks)
-        self.model_us_per_tick = _us_per_tick(self.model, probe)
         base = self.fit(Configuration(), sets="train")
         mode = self.settings.surrogate_search
         #: why the searches do or do not use the surrogate (``fit.surrogate_search``)
         self.surrogate_reason = ""
         if mode == "auto":
-            self.surrogate_search, self.surrogate_reason = expensive(self.model, self.model_us_per_tick,
-                                                                     self.settings.expensive_us_per_tick)
+            self.surrogate_search, self.surrogate_reason = expensive(
+                self.model, lambda: _us_per_tick(self.model, probe), self.settings.expensive_us_per_tick)
         else:
             self.surrogate_search = bool(mode)
         sse_c = base.sse_block_c.sum(axis=0)
