@@ -267,8 +267,10 @@ def _run_sums(gr: Grams, gw: np.ndarray, b_adj: np.ndarray) -> _RunSums:
     nr = len(runs)
     g_run = np.zeros((nr,) + gw.shape[1:])
     b_run = np.zeros((nr,) + b_adj.shape[1:])
-    np.add.at(g_run, ridx, gw)
-    np.add.at(b_run, ridx, b_adj)
+    # np.add.at's sums in its order (so to the bit), 3-12x faster: a block is a few hundred numbers
+    for i, r in enumerate(ridx.tolist()):
+        g_run[r] += gw[i]
+        b_run[r] += b_adj[i]
     held_run = np.zeros(nr, bool)
     held_run[ridx[gr.heldout]] = True
     return _RunSums(runs, g_run, b_run, held_run)
