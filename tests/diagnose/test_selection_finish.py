@@ -77,6 +77,48 @@ def test_an_effect_the_backward_check_drops_leaves_a_row_in_the_record(monkeypat
     assert "dropped in the final check" in table[0]["note"] and "p=0.38" in table[0]["note"]
 
 
+def test_the_last_claim_left_is_judged_alone_after_its_partner_is_dropped(monkeypatch):
+    """A pair's member that stays alone must earn its place alone (FED-LSTM, 25 ms dead time, 1 Dec 2026:
+    `normal_force_law` + `loadcell_crosstalk` claimed as a pair, the crosstalk dropped by this check at p 0.011,
+    and `normal_force_law` kept alone at p 0.038 because the check stopped at one effect)."""
+    law = make_effect("normal_force_law")
+    xt = make_effect("link_drag")  # any second effect: the judgements below are the test's
+    config = Configuration().with_effect(Active(law, {})).with_effect(Active(xt, {}))
+    judged = []
+
+    def judge(before, after, grams, hac, corr=None, null_sse=None, telling=None):
+        have = [a.name for a in after[1].actives]
+        gone = [n for n in have if n not in {x.name for x in before[1].actives}]
+        judged.append((gone, have))
+        if gone == ["link_drag"]:
+            return {"t": 2.3, "p": 0.011, "llr": 121.0, "n_blocks": 40}, np.full(6, 0.05)
+        if gone == ["normal_force_law"] and have == ["normal_force_law"]:  # alone, against the base model
+            return {"t": 1.8, "p": 0.038, "llr": 459.0, "n_blocks": 40}, np.full(6, 0.126)
+        return {"t": 4.2, "p": 6e-5, "llr": 768.0, "n_blocks": 40}, np.full(6, 0.139)
+
+    monkeypatch.setattr(selection_finish, "judge", judge)
+
+    class Fit(tuple):
+        grams = None
+        fixed_point = None
+
+        def coefs(self):
+            return {}
+
+    problem = SimpleNamespace(settings=SimpleNamespace(hac_lags=2, settle_rounds=4),
+                              fit=lambda cfg, coefs, names: Fit(("fit", cfg)))
+    steps = [SimpleNamespace(candidate=SimpleNamespace(effect=law)), SimpleNamespace(candidate=SimpleNamespace(effect=xt))]
+    table = []
+    cfg, names, _, kept = selection_finish.backward_check(
+        SelectionSettings(), problem, config, ["normal_force_law.c_n90", "link_drag.cd_d_m"], Fit(("fit", config)),
+        steps, table)
+    assert cfg.names() == [] and names == [] and kept == []
+    assert [r["effect"] for r in table] == ["link_drag", "normal_force_law"]
+    assert "alone, against the base model" in table[1]["note"] and "p=0.038" in table[1]["note"]
+    assert "beside the others' final values" in table[0]["note"]
+    assert (["normal_force_law"], ["normal_force_law"]) in judged
+
+
 def test_an_entry_pruned_away_leaves_the_current_values():
     from workbench.diagnose.selection_finish import _live
 
