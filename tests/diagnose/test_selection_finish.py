@@ -42,6 +42,22 @@ def test_the_refinement_searches_a_tone_within_the_window_of_its_line(monkeypatc
     assert [a.nl["tone_hz"] for a in out.actives] == [1.9989]
 
 
+class _Fit(tuple):
+    """A fit as the backward check reads it: ``("fit", configuration)``, one linear solve (nothing to settle)."""
+
+    grams = None
+    fixed_point = None
+
+    def coefs(self):
+        return {}
+
+
+def _problem():
+    """A problem whose fits are the configurations fitted (the judgements are the test's ``judge``)."""
+    return SimpleNamespace(settings=SimpleNamespace(hac_lags=2, settle_rounds=4),
+                           fit=lambda cfg, coefs, names: _Fit(("fit", cfg)))
+
+
 def test_an_effect_the_backward_check_drops_leaves_a_row_in_the_record(monkeypatch):
     """A claim that does not survive the final check is not silently removed from the record."""
     weak = make_effect("lift")
@@ -56,20 +72,12 @@ def test_an_effect_the_backward_check_drops_leaves_a_row_in_the_record(monkeypat
 
     monkeypatch.setattr(selection_finish, "judge", judge)
 
-    class Fit(tuple):
-        grams = None
-        fixed_point = None  # one linear solve: nothing to settle
-
-        def coefs(self):
-            return {}
-
-    problem = SimpleNamespace(settings=SimpleNamespace(hac_lags=2, settle_rounds=4),
-                              fit=lambda cfg, coefs, names: Fit(("fit", cfg)))
+    problem = _problem()
     steps = [SimpleNamespace(candidate=SimpleNamespace(effect=weak)),
              SimpleNamespace(candidate=SimpleNamespace(effect=strong))]
     table = []
     cfg, names, current, kept = selection_finish.backward_check(
-        SelectionSettings(), problem, config, ["lift.c_l", "link_drag.cd_d_m"], Fit(("fit", config)),
+        SelectionSettings(), problem, config, ["lift.c_l", "link_drag.cd_d_m"], _Fit(("fit", config)),
         steps, table)
     assert cfg.names() == ["link_drag"] and names == ["link_drag.cd_d_m"]
     assert [st.candidate.effect.name for st in kept] == ["link_drag"]
@@ -98,19 +106,11 @@ def test_the_last_claim_left_is_judged_alone_after_its_partner_is_dropped(monkey
 
     monkeypatch.setattr(selection_finish, "judge", judge)
 
-    class Fit(tuple):
-        grams = None
-        fixed_point = None
-
-        def coefs(self):
-            return {}
-
-    problem = SimpleNamespace(settings=SimpleNamespace(hac_lags=2, settle_rounds=4),
-                              fit=lambda cfg, coefs, names: Fit(("fit", cfg)))
+    problem = _problem()
     steps = [SimpleNamespace(candidate=SimpleNamespace(effect=law)), SimpleNamespace(candidate=SimpleNamespace(effect=xt))]
     table = []
     cfg, names, _, kept = selection_finish.backward_check(
-        SelectionSettings(), problem, config, ["normal_force_law.c_n90", "link_drag.cd_d_m"], Fit(("fit", config)),
+        SelectionSettings(), problem, config, ["normal_force_law.c_n90", "link_drag.cd_d_m"], _Fit(("fit", config)),
         steps, table)
     assert cfg.names() == [] and names == [] and kept == []
     assert [r["effect"] for r in table] == ["link_drag", "normal_force_law"]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from workbench.diagnose.problem import _us_per_tick, expensive
+from workbench.diagnose.problem import expensive, us_per_tick
 from workbench.hydro.ef import EmpiricalFormula
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import LegMotion
@@ -70,7 +70,7 @@ def test_the_timing_is_the_fastest_of_three_runs():
             calls.append(1)
             return super().wrench(motion)
 
-    us = _us_per_tick(Slow(EmpiricalFormula()), _motion())
+    us = us_per_tick(Slow(EmpiricalFormula()), _motion())
     assert len(calls) == 3 and us > 0
 
 

@@ -34,7 +34,7 @@ from workbench.diagnose.evidence_base import (
     ccf_clause,
     locked_clause,
 )
-from workbench.diagnose.evidence_dependence import _acf, _binned, _ccf, correlations, trend_test
+from workbench.diagnose.evidence_dependence import _binned, correlations, trend_test
 from workbench.diagnose.evidence_lines import (
     _near_harmonic,
     _scan_grid,
@@ -77,8 +77,6 @@ __all__ = [
     "_harmonic_amp2",
     "_clock_jitter",
     "locked_test",
-    "_acf",
-    "_ccf",
     "correlations",
     "_binned",
     "trend_test",

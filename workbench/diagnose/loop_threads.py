@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import contextlib
 import sys
-import time
 
 import numpy as np
 
 from workbench.diagnose.data import DataSettings
-from workbench.diagnose.problem import FitSettings, expensive
+from workbench.diagnose.problem import FitSettings, expensive, us_per_tick
 
 
 def one_blas_thread():
@@ -67,15 +66,10 @@ def _chunks_for(model, data: DataSettings) -> DataSettings:
     n = 256
     z = np.zeros((2, n))
     probe = LegMotion(1 / 65, z - 40.0, z + 40.0, z, z, z + 0.1, z, z)
-
-    def us_per_tick() -> float:
-        t0 = time.perf_counter()
-        model.wrench(probe)
-        return 1e6 * (time.perf_counter() - t0) / (2 * n)
-
-    # the same rule as the searches' surrogate (problem.expensive): a window net is expensive whatever the load
+    # the same rule and timing as the searches' surrogate (problem.expensive): a window net is expensive whatever
+    # the load
     try:
-        costly = expensive(model, us_per_tick, FitSettings().expensive_us_per_tick)[0]
+        costly = expensive(model, lambda: us_per_tick(model, probe), FitSettings().expensive_us_per_tick)[0]
     except Exception:  # noqa: BLE001 - a model that cannot run a probe is diagnosed as configured
         return data
     if costly and data.chunk_runs > 12:

@@ -43,7 +43,7 @@ class FitSettings:
     expensive_us_per_tick: float = 40.0
 
 
-def _us_per_tick(model, probe: LegMotion, runs: int = 3) -> float:
+def us_per_tick(model, probe: LegMotion, runs: int = 3) -> float:
     """The model's cost in microseconds per tick on ``probe``: the fastest of ``runs`` runs (load adds, never removes)."""
     import time
 
@@ -55,14 +55,14 @@ def _us_per_tick(model, probe: LegMotion, runs: int = 3) -> float:
     return 1e6 * best / max(probe.theta_h_deg.size, 1)
 
 
-def expensive(model, us_per_tick: Callable[[], float], limit_us: float) -> tuple[bool, str]:
+def expensive(model, timed: Callable[[], float], limit_us: float) -> tuple[bool, str]:
     """Whether searches over input effects should use the surrogate (``surrogate_search: auto``), and why.
 
     Decided by what the model is where it says, so that the same data give the same diagnosis on a busy
     machine and an idle one: a model's own ``expensive`` attribute (a plugin model may declare it); a
     window net (``seq_len`` > 1 recurrent steps for every tick it predicts: the FED-LSTM's 32); a model
     wrapping another (``base``: an augmented model) as its base. Only a model that says none of these is
-    timed (``us_per_tick()``, called only then) against ``limit_us``. Measured (30 Nov 2026): the FED-LSTM cost 37-60 us a tick on this
+    timed (``timed()``: microseconds a tick, called only then) against ``limit_us``. Measured (30 Nov 2026): the FED-LSTM cost 37-60 us a tick on this
     two-core machine against the 40 us limit, so the timed rule flipped with the load between cases of
     one battery, and with it the searches (the exact model in every evaluation: 598 s for one case, 16-54
     s for its neighbours with the surrogate) and the selection path (``follow_lookahead`` is off with the
@@ -80,7 +80,7 @@ def expensive(model, us_per_tick: Callable[[], float], limit_us: float) -> tuple
         if inner is None or inner is seen or not hasattr(inner, "wrench"):
             break
         seen = inner
-    us = us_per_tick()
+    us = timed()
     return us > limit_us, f"timed: {us:.0f} us a tick against fit.expensive_us_per_tick {limit_us:g}"
 
 
@@ -114,7 +114,7 @@ class Problem:
         self.surrogate_reason = ""
         if mode == "auto":
             self.surrogate_search, self.surrogate_reason = expensive(
-                self.model, lambda: _us_per_tick(self.model, probe), self.settings.expensive_us_per_tick)
+                self.model, lambda: us_per_tick(self.model, probe), self.settings.expensive_us_per_tick)
         else:
             self.surrogate_search = bool(mode)
         sse_c = base.sse_block_c.sum(axis=0)
