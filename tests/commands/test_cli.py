@@ -1,6 +1,7 @@
 """The ``workbench`` command's surface: fast help that names every verb, and a described ``--help`` per verb."""
 
 import argparse
+import re
 import subprocess
 import sys
 import time
@@ -78,6 +79,28 @@ def test_sub_verb_help_exits_0_with_a_description(argv, capsys):
     description = (_subcommands(VERBS[argv[0]])[argv[1]].description or "").split()
     assert len(description) >= 4, f"workbench {' '.join(argv)} has no description"
     assert " ".join(description[:4]) in " ".join(text.split())
+
+
+def _example_lines(text: str) -> list[str]:
+    return text.split("examples:", 1)[1].splitlines() if "examples:" in text else []
+
+
+@pytest.mark.parametrize("argv", [[v] for v in VERBS] + SUB_VERBS, ids=" ".join)
+def test_help_examples_are_one_command_a_line(argv, capsys):
+    """A lost line break (a single backslash in a Python string) runs two example lines into one."""
+    lines = _example_lines(_help_text(argv, capsys))
+    # an option after a run of spaces mid-line: the continuation line was joined to the one before
+    joined = [ln for ln in lines if re.search(r"\S {3,}--[a-z]", ln)]
+    assert not joined, joined
+    # a continued example ends with one backslash, and the next line carries on indented
+    for ln, nxt in zip(lines, [*lines[1:], ""][:len(lines)], strict=True):
+        if ln.rstrip().endswith("\\"):
+            assert not ln.rstrip().endswith("\\\\") and nxt.startswith("      "), (ln, nxt)
+
+
+def test_the_example_check_sees_a_joined_line():
+    bad = "examples:\n  workbench diagnose --model ef       --out /tmp/x\n"
+    assert [ln for ln in _example_lines(bad) if re.search(r"\S {3,}--[a-z]", ln)]
 
 
 def test_no_verb_prints_help(capsys):

@@ -45,7 +45,7 @@ def register(sub) -> None:
   workbench diagnose --campaign datasets/raw/tunnel-2025-03 --model augmented:datasets/diagnosis/demo-tunnel-ef \\
       --out /tmp/second-pass                       # diagnose an already augmented model again
   workbench diagnose --campaign /tmp/vl --model ef --out /tmp/d --effects servo_lag,sensor_drift --no-mlflow
-  workbench diagnose --campaign datasets/raw/tunnel-new-servo --reference datasets/raw/demo-tunnel --model ef \
+  workbench diagnose --campaign datasets/raw/tunnel-new-servo --reference datasets/raw/demo-tunnel --model ef \\
       --out /tmp/what-changed                      # only what differs from the reference campaign is named
   workbench diagnose --trials datasets/scores/demo-pool --gaits datasets/gaits --model ef --out /tmp/traj
   workbench diagnose --trials datasets/scores/demo-pool --models ef \\

@@ -21,7 +21,7 @@ EXAMPLES = """\
 
   # the paper's 16-tick windows as their own registered model (models:/fed-lstm-16@champion), the
   # 32-tick champion untouched
-  workbench train --data datasets/processed/interp --set data.seq_len=16 \
+  workbench train --data datasets/processed/interp --set data.seq_len=16 \\
       --out datasets/models/fed-lstm-16 --registered-model fed-lstm-16
 
   # adopt the best parameters of a search (tune writes them to best.json as overrides)
