@@ -34,22 +34,24 @@ ENVELOPE_ORDERS = 1
 
 
 def _harmonic_design(run: RunResidual, t: np.ndarray, k: int, degree: int = 0,
-                     enveloped: np.ndarray | None = None) -> np.ndarray:
+                     enveloped: np.ndarray | None = None, base: np.ndarray | None = None) -> np.ndarray:
     """Columns of the harmonic regression: the mean and k harmonics, then envelopes.
 
     The ``enveloped`` harmonics (orders from 1) times the Legendre polynomials of the run's time
-    of degree 1 to ``degree``.
+    of degree 1 to ``degree``. ``base``: this run's design of degree 0 already made (its columns are
+    reused, not computed again).
     """
-    w = 2 * np.pi * run.freq * (t - t[0])
-    j = np.arange(1, k + 1)
-    x = np.concatenate([np.ones((len(t), 1)), np.sin(np.outer(w, j)), np.cos(np.outer(w, j))], axis=1)
+    if base is None:
+        w = 2 * np.pi * run.freq * (t - t[0])
+        j = np.arange(1, k + 1)
+        base = np.concatenate([np.ones((len(t), 1)), np.sin(np.outer(w, j)), np.cos(np.outer(w, j))], axis=1)
     if degree < 1 or enveloped is None or len(enveloped) == 0 or len(t) < 2:
-        return x
+        return base
     sub = np.asarray(enveloped, int)
     u = 2 * (t - t[0]) / max(t[-1] - t[0], 1e-12) - 1
     env = np.polynomial.legendre.legvander(u, degree)[:, 1:]
-    h = np.concatenate([np.sin(np.outer(w, sub)), np.cos(np.outer(w, sub))], axis=1)
-    return np.concatenate([x] + [h * env[:, [d]] for d in range(env.shape[1])], axis=1)
+    h = np.concatenate([base[:, sub], base[:, k + sub]], axis=1)
+    return np.concatenate([base] + [h * env[:, [d]] for d in range(env.shape[1])], axis=1)
 
 
 def _solve(x: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -81,7 +83,7 @@ def _harmonic_fit(run: RunResidual, cutoff_hz: float):
     amp2 = coef[1:k + 1] ** 2 + coef[k + 1:] ** 2
     rel = amp2 / np.maximum(amp2.max(axis=0), 1e-300)
     strong = np.flatnonzero((rel >= ENVELOPE_SHARE).any(axis=1))[:ENVELOPE_ORDERS] + 1
-    x = _harmonic_design(run, t, k, ENVELOPE_DEGREE, strong)
+    x = _harmonic_design(run, t, k, ENVELOPE_DEGREE, strong, base=x0)
     locked = x @ _solve(x, e) if x.shape[1] > x0.shape[1] and len(t) > 4 * x.shape[1] else x0 @ coef
     cache[cutoff_hz] = (k, amp2, locked - locked.mean(axis=0))
     return cache[cutoff_hz]
