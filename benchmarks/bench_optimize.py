@@ -32,13 +32,13 @@ def untrained_fed_lstm():
     """The paper's FED-LSTM architecture (2 x 64, 16 ticks) with random weights: the same inference cost."""
     import torch
 
-    from workbench.learn.config import ModelCfg
+    from workbench.learn.config import ModelSettings
     from workbench.learn.legmodel import LearnedLegModel
     from workbench.learn.nets import build_net
     from workbench.learn.windows import Normalisation
 
     torch.manual_seed(0)
-    cfg = ModelCfg(variant="ef_residual", hidden_size=64, num_layers=2, dropout=0.21)
+    cfg = ModelSettings(variant="ef_residual", hidden_size=64, num_layers=2, dropout=0.21)
     norm = Normalisation((0.1, -45.0, 0.0, 0.0, 0.0), (0.1, 30.0, 50.0, 100.0, 200.0), (0.0,) * 6,
                          (0.05, 0.05, 0.05, 0.005, 0.005, 0.005))
     return LearnedLegModel(build_net(cfg, 16), model=cfg, seq_len=16, dt_s=1 / 65, norm=norm, name="lstm")

@@ -45,7 +45,7 @@ def main() -> int:
     import torch
     from torch.utils.data import BatchSampler, DataLoader
 
-    from workbench.learn.config import LearnConfig, ModelCfg
+    from workbench.learn.config import LearnSettings, ModelSettings
     from workbench.learn.datamodule import WindowBatches
     from workbench.learn.legmodel import LearnedLegModel
     from workbench.learn.module import WrenchRegressor
@@ -56,7 +56,7 @@ def main() -> int:
     _quiet_lightning()
     if args.threads:
         torch.set_num_threads(args.threads)
-    cfg = LearnConfig()
+    cfg = LearnSettings()
     seq_len, bs = cfg.data.seq_len, args.batch_size
     x, y, ends = _data(200_000, seq_len)
 
@@ -139,9 +139,9 @@ def main() -> int:
     # --- inference --------------------------------------------------------------------------
     from workbench.hydro.motion import JointSinusoid
 
-    net = build_net(ModelCfg(), seq_len).eval()
+    net = build_net(ModelSettings(), seq_len).eval()
     norm = Normalisation((0.15, -50, 20, 0, 0), (0.08, 40, 50, 150, 200), (0,) * 6, (0.1,) * 6)
-    model = LearnedLegModel(net, model=ModelCfg(), seq_len=seq_len, dt_s=1 / 65, norm=norm)
+    model = LearnedLegModel(net, model=ModelSettings(), seq_len=seq_len, dt_s=1 / 65, norm=norm)
     one = torch.randn(1, seq_len, 5)
     lat = []
     with torch.inference_mode():

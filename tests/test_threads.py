@@ -22,12 +22,12 @@ def test_settings_accepted_and_refused():
 
 def test_learn_and_gait_configs_refuse_a_bad_thread_count():
     from workbench.gait.config import config_from_dict as gait_config
-    from workbench.learn.config import LearnConfig
+    from workbench.learn.config import LearnSettings
 
     with pytest.raises(ParamsError, match=r"train\.trainer\.torch_threads: torch_threads must be"):
-        LearnConfig().with_overrides({"trainer.torch_threads": 0})
-    assert LearnConfig().with_overrides({"trainer.torch_threads": 2}).trainer.torch_threads == 2
-    assert LearnConfig().trainer.torch_threads == "auto"
+        LearnSettings().with_overrides({"trainer.torch_threads": 0})
+    assert LearnSettings().with_overrides({"trainer.torch_threads": 2}).trainer.torch_threads == 2
+    assert LearnSettings().trainer.torch_threads == "auto"
     import yaml
 
     params = Path(__file__).resolve().parents[1] / "pipelines" / "gait.yaml"

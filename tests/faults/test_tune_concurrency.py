@@ -20,12 +20,12 @@ pytestmark = pytest.mark.faults
 
 
 def _journal(path):
-    from workbench.learn.tune import TuneCfg
+    from workbench.learn.tune import TuneSettings
     from workbench.learn.tune_storage import resolve_storage
 
     # a 10 s interval: the worker below is killed between beats, not while it holds the journal's lock
     # (a lock left by a killed writer blocks the journal for Optuna's 30 s lock grace period)
-    return resolve_storage(str(path), "s", TuneCfg(heartbeat_interval_s=10, grace_period_s=30))[0]
+    return resolve_storage(str(path), "s", TuneSettings(heartbeat_interval_s=10, grace_period_s=30))[0]
 
 
 def test_a_trial_whose_worker_was_killed_is_failed_at_once_and_queued_again(tmp_path):
@@ -36,10 +36,10 @@ def test_a_trial_whose_worker_was_killed_is_failed_at_once_and_queued_again(tmp_
     # a real worker process: asks for a trial, beats, then hangs until it is killed
     code = textwrap.dedent(f"""
         import time, optuna
-        from workbench.learn.tune import TuneCfg
+        from workbench.learn.tune import TuneSettings
         from workbench.learn.tune_storage import resolve_storage
         from optuna.storages._heartbeat import get_heartbeat_thread
-        st = resolve_storage({str(journal)!r}, "s", TuneCfg(heartbeat_interval_s=10, grace_period_s=30))[0]
+        st = resolve_storage({str(journal)!r}, "s", TuneSettings(heartbeat_interval_s=10, grace_period_s=30))[0]
         study = optuna.load_study(study_name="s", storage=st)
         t = study.ask({{"x": optuna.distributions.FloatDistribution(0, 1)}})
         with get_heartbeat_thread(t._trial_id, st):
@@ -128,12 +128,12 @@ def test_a_worker_stopped_as_it_starts_a_trial_records_the_trials_owner_first(tm
 
 def _storage(tmp_path, kind: str):
     """A journal file or an RDB (SQLite standing in for PostgreSQL: the same storage class) of study "s"."""
-    from workbench.learn.tune import TuneCfg
+    from workbench.learn.tune import TuneSettings
     from workbench.learn.tune_storage import resolve_storage
 
     if kind == "journal":
         return _journal(tmp_path / "s.journal")
-    return resolve_storage(f"sqlite:///{tmp_path / 's.db'}", "s", TuneCfg(heartbeat_interval_s=10,
+    return resolve_storage(f"sqlite:///{tmp_path / 's.db'}", "s", TuneSettings(heartbeat_interval_s=10,
                                                                           grace_period_s=30))[0]
 
 

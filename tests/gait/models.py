@@ -39,13 +39,13 @@ def small_lstm(seed: int = 0, hidden: int = 16, residual_scale_n: float = 0.03, 
     """
     import torch
 
-    from workbench.learn.config import ModelCfg
+    from workbench.learn.config import ModelSettings
     from workbench.learn.legmodel import LearnedLegModel
     from workbench.learn.nets import build_net
     from workbench.learn.windows import Normalisation
 
     torch.manual_seed(seed)
-    cfg = ModelCfg(variant=variant, hidden_size=hidden, num_layers=2, dropout=0.0, backbone="lstm")
+    cfg = ModelSettings(variant=variant, hidden_size=hidden, num_layers=2, dropout=0.0, backbone="lstm")
     net = build_net(cfg, 16)
     s = residual_scale_n
     norm = Normalisation((0.1, -45.0, 0.0, 0.0, 0.0), (0.1, 30.0, 50.0, 100.0, 200.0), (0.0,) * 6,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from workbench.errors import ParamsError
-from workbench.gait.config import OptimizeConfig, TaskSettings, config_from_dict
+from workbench.gait.config import OptimizeSettings, TaskSettings, config_from_dict
 from workbench.gait.objectives import TaskSpec
 from workbench.gait.optimize import optimize_task
 from workbench.gait.run import NSGA2Settings
@@ -74,7 +74,7 @@ def test_per_side_range_round_trips_through_the_gait_and_controller_files(robot)
     with pytest.raises(ValueError, match="one per side"):
         space.vectors(GaitBatch.from_arrays([[-20, -20, -30, -20]], -50, 0.5, [0, 0, 0, 0]))
     spec = TaskSpec("turn", cap_s=5.0, target_yaw_deg=20.0)
-    cfg = OptimizeConfig(tasks={"turn": TaskSettings(spec, (3.0, 1.0, 6.0))}, space=space,
+    cfg = OptimizeSettings(tasks={"turn": TaskSettings(spec, (3.0, 1.0, 6.0))}, space=space,
                          nsga2=NSGA2Settings(pop_size=8, n_gen=2, seed=0), retain=3)
     out = optimize_task(cfg, "turn", EF, robot, model_label="ef", plots=False)
     doc = json.loads(json.dumps(out.gait_doc))

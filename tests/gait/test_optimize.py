@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from models import small_lstm
 
-from workbench.gait.config import OptimizeConfig, TaskSettings
+from workbench.gait.config import OptimizeSettings, TaskSettings
 from workbench.gait.objectives import TaskSpec
 from workbench.gait.optimize import optimize_task
 from workbench.gait.problem import GaitProblem, SimSettings
@@ -21,7 +21,7 @@ REF = {"straight": (0.5, 1.0, 7.0), "turn": (3.0, 1.0, 9.0)}
 
 
 def _config(task_spec, pop=12, gens=4, seed=0, **kw):
-    return OptimizeConfig(tasks={task_spec.task: TaskSettings(task_spec, REF[task_spec.task])},
+    return OptimizeSettings(tasks={task_spec.task: TaskSettings(task_spec, REF[task_spec.task])},
                           nsga2=NSGA2Settings(pop_size=pop, n_gen=gens, seed=seed), **kw)
 
 

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from workbench.gait.config import OptimizeConfig, TaskSettings
+from workbench.gait.config import OptimizeSettings, TaskSettings
 from workbench.gait.objectives import TaskSpec
 from workbench.gait.optimize import optimize_task
 from workbench.gait.problem import GaitProblem, SimSettings
@@ -45,7 +45,7 @@ class _StiffAtHighFrequency(LegForceModel):
 
 
 def test_unconverged_gaits_are_penalised_counted_and_never_retained(robot):
-    cfg = OptimizeConfig(tasks={"straight": TaskSettings(SPEC, (0.5, 1.0, 6.0))},
+    cfg = OptimizeSettings(tasks={"straight": TaskSettings(SPEC, (0.5, 1.0, 6.0))},
                          nsga2=NSGA2Settings(pop_size=12, n_gen=3, seed=1), retain=4,
                          simulation=SimSettings())
     model = _StiffAtHighFrequency()
@@ -88,7 +88,7 @@ def test_an_unconverged_gait_never_reaches_the_gait_file_or_a_figure(robot):
     from workbench.gait.space import GaitSpace
 
     def cfg(f_lo):
-        return OptimizeConfig(tasks={"straight": TaskSettings(SPEC, (0.5, 1.0, 6.0))}, retain=8,
+        return OptimizeSettings(tasks={"straight": TaskSettings(SPEC, (0.5, 1.0, 6.0))}, retain=8,
                               space=GaitSpace(frequency_hz=(f_lo, 0.65)),
                               nsga2=NSGA2Settings(pop_size=8, n_gen=1, seed=2), simulation=SimSettings())
 

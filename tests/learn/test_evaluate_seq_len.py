@@ -16,13 +16,13 @@ def _saved(folder, seq_len, seed):
     """A FED-LSTM with random weights on the real code path, saved as `workbench train` saves one."""
     import torch
 
-    from workbench.learn.config import ModelCfg
+    from workbench.learn.config import ModelSettings
     from workbench.learn.legmodel import LearnedLegModel, save_model
     from workbench.learn.nets import build_net
     from workbench.learn.windows import Normalisation
 
     torch.manual_seed(seed)
-    cfg = ModelCfg(variant="ef_residual", hidden_size=8, num_layers=1, dropout=0.0, backbone="lstm")
+    cfg = ModelSettings(variant="ef_residual", hidden_size=8, num_layers=1, dropout=0.0, backbone="lstm")
     norm = Normalisation((0.1, -45.0, 0.0, 0.0, 0.0), (0.1, 30.0, 50.0, 100.0, 200.0), (0.0,) * 6,
                          (0.03, 0.03, 0.03, 0.003, 0.003, 0.003))
     folder.mkdir(parents=True)

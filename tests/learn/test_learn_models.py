@@ -13,11 +13,11 @@ from workbench.hydro.motion import JointSinusoid, LegMotion
 
 @pytest.fixture(scope="module")
 def prepared(frame):
-    from workbench.learn.config import DataCfg
+    from workbench.learn.config import DataSettings
     from workbench.learn.datamodule import prepare_data
     from workbench.learn.windows import table_from_frame
 
-    return prepare_data(table_from_frame(frame), DataCfg(), need_ef=True)
+    return prepare_data(table_from_frame(frame), DataSettings(), need_ef=True)
 
 
 def _val_loss(module, dm) -> float:

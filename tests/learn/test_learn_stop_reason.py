@@ -10,11 +10,11 @@ from learn_helpers import tiny_config
 
 @pytest.fixture(scope="module")
 def prepared(frame):
-    from workbench.learn.config import DataCfg
+    from workbench.learn.config import DataSettings
     from workbench.learn.datamodule import prepare_data
     from workbench.learn.windows import table_from_frame
 
-    return prepare_data(table_from_frame(frame), DataCfg(), need_ef=False)
+    return prepare_data(table_from_frame(frame), DataSettings(), need_ef=False)
 
 
 def test_all_epochs_run_is_reported_as_max_epochs(prepared, parquet, tmp_path):

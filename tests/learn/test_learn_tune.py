@@ -69,12 +69,12 @@ def test_a_pruned_trial_ends_its_run_killed_and_tagged_pruned(config, project, p
     from mlflow import MlflowClient
 
     from workbench.learn.config import load_config
-    from workbench.learn.tune import TuneCfg, run_worker
+    from workbench.learn.tune import TuneSettings, run_worker
 
     interp, _ = parquet
     base = load_config(config).with_overrides({"data.paths": [str(interp)]})
     doc = yaml.safe_load(config.read_text())["tune"]
-    tune = dataclasses.replace(TuneCfg.from_dict(doc), study="pruned", pruner={"type": "threshold", "upper": 1e-9})
+    tune = dataclasses.replace(TuneSettings.from_dict(doc), study="pruned", pruner={"type": "threshold", "upper": 1e-9})
     storage = str(project / ".optuna" / "pruned.journal")
     (project / ".optuna").mkdir(exist_ok=True)  # the verb makes it; this test opens the journal itself
     optuna.create_study(study_name="pruned", storage=optuna.storages.JournalStorage(

@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from workbench.gait.config import OptimizeConfig
+from workbench.gait.config import OptimizeSettings
 from workbench.gait.export import best_table, controller_document, gait_document
 from workbench.gait.objectives import score
 from workbench.gait.problem import GaitProblem
@@ -120,7 +120,7 @@ def _converged_only(retained: OptimizeResult, traj: Trajectory, task: str,
     return kept, _rows(traj, keep), int((~ok).sum())
 
 
-def optimize_task(cfg: OptimizeConfig, task: str, leg_model: LegForceModel, robot: RobotParams, *,
+def optimize_task(cfg: OptimizeSettings, task: str, leg_model: LegForceModel, robot: RobotParams, *,
                   model_label: str, model_spec: str | None = None,
                   on_generation: Callable[[Generation], None] | None = None, plots: bool = True,
                   workers: int | None = None) -> GaitOutcome:
@@ -154,7 +154,7 @@ def optimize_task(cfg: OptimizeConfig, task: str, leg_model: LegForceModel, robo
     return outcome
 
 
-def _search(cfg: OptimizeConfig, ts, task: str, problem: GaitProblem, robot: RobotParams, model_label: str,
+def _search(cfg: OptimizeSettings, ts, task: str, problem: GaitProblem, robot: RobotParams, model_label: str,
             model_spec: str | None, on_generation, plots: bool, t0: float) -> GaitOutcome:
     """NSGA-II, the direct check or re-simulation, and the documents (see :func:`optimize_task`)."""
     leg_model = problem.leg_model

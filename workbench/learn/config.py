@@ -7,7 +7,7 @@ an unknown key (in the file or a ``--set``) is a :class:`~workbench.errors.Param
 file, the key path (``train.model.hiden_size``) and the allowed keys, so a typo in the YAML is an
 error, not a silently ignored knob.
 
-Settings classes end in ``Settings`` (issue 17); the earlier names (``LearnConfig``, ``DataSettings``,
+Settings classes end in ``Settings`` (issue 17); the earlier names (``LearnConfig``, ``DataCfg``,
 ...) stay as aliases.
 """
 

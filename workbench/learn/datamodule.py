@@ -17,7 +17,7 @@ import torch
 from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
 
 from workbench.errors import DataError
-from workbench.learn.config import DataCfg
+from workbench.learn.config import DataSettings
 from workbench.learn.split import ParameterSplit, split_parameter_sets
 from workbench.learn.windows import Normalisation, RunTable, fit_normalisation, window_ends, with_ef
 
@@ -48,7 +48,7 @@ class PreparedData:
         return float(np.median(self.table.runs["dt_s"].to_numpy()[runs]))
 
 
-def prepare_data(table: RunTable, cfg: DataCfg, *, need_ef: bool = False,
+def prepare_data(table: RunTable, cfg: DataSettings, *, need_ef: bool = False,
                  split: ParameterSplit | None = None) -> PreparedData:
     """Split by parameter set (or reuse ``split``), fit the normalisation on training runs, normalise once."""
     if split is None:
@@ -91,7 +91,7 @@ class WindowBatches(Dataset):
 class WindowDataModule(pl.LightningDataModule):
     """Train/val/test loaders of windows over a :class:`PreparedData`."""
 
-    def __init__(self, data: PreparedData, cfg: DataCfg, *, with_base: bool = False, seed: int = 0):
+    def __init__(self, data: PreparedData, cfg: DataSettings, *, with_base: bool = False, seed: int = 0):
         super().__init__()
         self.data, self.cfg, self.with_base, self.seed = data, cfg, with_base, seed
         self.ends = {name: window_ends(data.table, data.runs(name), cfg.seq_len) for name in ("train", "val", "test")}

@@ -202,7 +202,7 @@ def train_ensemble(cfg, *, members: int = 5, first_seed: int = 0, report: Callab
                    split=None) -> tuple[dict, dict[str, bytes]]:
     """Train ``members`` FED-LSTMs through :func:`workbench.learn.train.train`; return the ensemble folder's content.
 
-    ``cfg`` is the :class:`LearnConfig` every member uses (its ``trainer.seed`` is replaced by
+    ``cfg`` is the :class:`LearnSettings` every member uses (its ``trainer.seed`` is replaced by
     ``first_seed + k``; its ``model_dir`` is ignored). The data are read and split once. Returns
     ``(record, files)``: the ``ensemble.json`` record (calibration before/after, member and ensemble
     test MSE, costs) and the folder's files as bytes (``ensemble.json``, ``member-XX/model.json``,

@@ -37,7 +37,7 @@ import numpy as np
 from workbench.errors import ModelLoadError
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import LegMotion
-from workbench.learn.config import FEATURES, ModelCfg
+from workbench.learn.config import FEATURES, ModelSettings
 from workbench.learn.windows import Normalisation
 
 MODEL_SCHEMA = "workbench/learned-leg-model@1"
@@ -48,7 +48,7 @@ CHUNK = 8192
 class LearnedLegModel(LegForceModel):
     """A trained window net (FED-LSTM or a variant) behind the leg force model interface."""
 
-    def __init__(self, net, *, model: ModelCfg, seq_len: int, dt_s: float, norm: Normalisation,
+    def __init__(self, net, *, model: ModelSettings, seq_len: int, dt_s: float, norm: Normalisation,
                  info: Mapping[str, Any] | None = None, name: str = "lstm"):
         self.net = net.eval()
         self.model_cfg = model
@@ -229,7 +229,7 @@ def load_model(folder: str | Path, **info) -> LearnedLegModel:
         raise ModelLoadError(f"unknown model schema {spec.get('schema')!r}", path=spec_path,
                              hint=f"expected {MODEL_SCHEMA}")
     try:
-        cfg = ModelCfg(**spec["model"])
+        cfg = ModelSettings(**spec["model"])
         net = build_net(cfg, int(spec["seq_len"]))
         dt_s, norm = float(spec["dt_s"]), Normalisation.from_dict(spec["normalisation"])
     except (KeyError, TypeError, ValueError) as exc:  # a torn or hand-edited model.json: one line

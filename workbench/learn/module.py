@@ -14,13 +14,13 @@ import lightning.pytorch as pl
 import torch
 from torch import nn
 
-from workbench.learn.config import OptimCfg
+from workbench.learn.config import OptimSettings
 
 
 class WrenchRegressor(pl.LightningModule):
     """Train a window net on (x, y[, base]) batches."""
 
-    def __init__(self, net: nn.Module, optim: OptimCfg):
+    def __init__(self, net: nn.Module, optim: OptimSettings):
         super().__init__()
         self.net = net
         self.optim = optim

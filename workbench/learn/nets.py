@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from workbench.learn.config import FEATURES, ModelCfg
+from workbench.learn.config import FEATURES, ModelSettings
 
 
 class RecurrentRegressor(nn.Module):
@@ -54,7 +54,7 @@ class WindowMLP(nn.Module):
         return self.net(x)
 
 
-def build_net(model: ModelCfg, seq_len: int) -> nn.Module:
+def build_net(model: ModelSettings, seq_len: int) -> nn.Module:
     """The network a configuration names (the hybrid uses its backbone)."""
     kind = model.backbone if model.variant == "ef_residual" else model.variant
     if kind == "mlp":

@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from datetime import timedelta
 from typing import Callable, Sequence
 
-from workbench.learn.config import LearnConfig
+from workbench.learn.config import LearnSettings
 from workbench.threads import apply_torch_threads
 
 #: extra test metrics logged per channel
@@ -40,7 +40,7 @@ def _quiet_lightning() -> None:
 
 
 @contextmanager
-def _mlflow_run(cfg: LearnConfig, tags: dict, run_name: str, parent_run_id: str | None):
+def _mlflow_run(cfg: LearnSettings, tags: dict, run_name: str, parent_run_id: str | None):
     """An MLflow run (:func:`workbench.tracking.tracked_run`), or None when tracking is off.
 
     A pruned Optuna trial ends KILLED and tagged ``state=pruned``, Ctrl-C KILLED ``interrupted``,
@@ -56,7 +56,7 @@ def _mlflow_run(cfg: LearnConfig, tags: dict, run_name: str, parent_run_id: str 
         yield run
 
 
-def default_run_name(cfg: LearnConfig, campaigns=(), kind: str = "train", extra_tags: dict | None = None) -> str:
+def default_run_name(cfg: LearnSettings, campaigns=(), kind: str = "train", extra_tags: dict | None = None) -> str:
     """The run's name unless the configuration gives one (``tracking.run_name``).
 
     ``train fed-lstm demo-tunnel @a1b2c3d`` (``dvc:train ...`` from a DVC stage) for training,
@@ -72,7 +72,7 @@ def default_run_name(cfg: LearnConfig, campaigns=(), kind: str = "train", extra_
     return run_name(kind, cfg.tracking.registered_model, campaigns, cfg.tracking.dvc_stage)
 
 
-def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: Callable[[str], None] | None = None,
+def train(cfg: LearnSettings, *, prepared=None, callbacks: Sequence = (), report: Callable[[str], None] | None = None,
           parent_run_id: str | None = None, extra_tags: dict | None = None, kind: str = "train",
           log_model: bool = True, score_test: bool = True) -> tuple[dict, dict]:
     """Train one configuration; returns ``(metrics, objects)``.
@@ -144,7 +144,7 @@ def train(cfg: LearnConfig, *, prepared=None, callbacks: Sequence = (), report: 
     return metrics, objects
 
 
-def _prepared_data(cfg: LearnConfig, prepared, hybrid: bool):
+def _prepared_data(cfg: LearnSettings, prepared, hybrid: bool):
     """The data to train on: ``cfg.data.paths`` read and prepared, or ``prepared`` (given the EF base a hybrid needs)."""
     from workbench.learn.datamodule import prepare_data
     from workbench.learn.windows import read_table
@@ -156,7 +156,7 @@ def _prepared_data(cfg: LearnConfig, prepared, hybrid: bool):
     return prepared
 
 
-def _log_inputs(cfg: LearnConfig, dm, prepared, threads) -> None:
+def _log_inputs(cfg: LearnSettings, dm, prepared, threads) -> None:
     """Log the configuration, the window and set counts and the split (``split.json``) to the active MLflow run."""
     import mlflow
 
@@ -169,7 +169,7 @@ def _log_inputs(cfg: LearnConfig, dm, prepared, threads) -> None:
     mlflow.log_dict(prepared.split.to_dict(prepared.table), "split.json")
 
 
-def _trainer(cfg: LearnConfig, cbs: list):
+def _trainer(cfg: LearnSettings, cbs: list):
     """The Lightning trainer on the CPU, with ``cbs`` (and early stopping when the configuration asks for it)."""
     import lightning.pytorch as pl
     from lightning.pytorch.callbacks import EarlyStopping
@@ -206,7 +206,7 @@ def _fit_metrics(stop: dict, best, history: list[dict], fit_s: float, t_start: f
             "train_windows_per_s": sorted(wps)[len(wps) // 2] if wps else float("nan")}
 
 
-def _test_metrics(cfg: LearnConfig, prepared, model) -> dict:
+def _test_metrics(cfg: LearnSettings, prepared, model) -> dict:
     """The model and the EF scored on the held-out test runs (none: no metrics)."""
     from workbench.hydro.ef import EmpiricalFormula
     from workbench.learn.metrics import score_runs
@@ -220,7 +220,7 @@ def _test_metrics(cfg: LearnConfig, prepared, model) -> dict:
             "test_nmse": sum(1 - v for v in scored["lstm"]["r2"].values()) / 6}
 
 
-def stop_reason(trainer, cfg: LearnConfig, epochs: int) -> dict:
+def stop_reason(trainer, cfg: LearnSettings, epochs: int) -> dict:
     """Why training stopped: ``max_epochs``, ``early_stopping`` (patience) or ``time_cap`` (``max_time_s``).
 
     Returns ``{"reason", "detail"}``; the detail is the sentence shown and recorded, e.g.
@@ -246,7 +246,7 @@ def stop_reason(trainer, cfg: LearnConfig, epochs: int) -> dict:
                                          "(a callback asked to stop)"}
 
 
-def _log_model(cfg: LearnConfig, run, card: dict[str, bytes], prepared, tags: dict) -> dict:
+def _log_model(cfg: LearnSettings, run, card: dict[str, bytes], prepared, tags: dict) -> dict:
     """Log the model card as an MLflow pyfunc model of the run; register it when the configuration says so.
 
     The card is laid out in a temporary folder for MLflow (:func:`workbench.learn.legmodel.staged_folder`);
@@ -301,7 +301,7 @@ def _json_bytes(doc) -> bytes:
     return (json.dumps(doc, indent=2) + "\n").encode("utf-8")
 
 
-def model_card(cfg: LearnConfig, model, prepared, summary: dict, history: list[dict], *,
+def model_card(cfg: LearnSettings, model, prepared, summary: dict, history: list[dict], *,
                curve: bool = True) -> dict[str, bytes]:
     """The model folder's files as bytes: name -> content.
 

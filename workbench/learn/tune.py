@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from workbench.errors import ContractError, StageError
-from workbench.learn.config import LearnConfig, config_from_dict
+from workbench.learn.config import LearnSettings, config_from_dict
 from workbench.learn.tune_summary import progress_callback, summarise
 from workbench.threads import AUTO, idle_cores
 
@@ -108,7 +108,8 @@ def suggest(trial, space: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def trial_config(base: LearnConfig, tune: TuneCfg, params: Mapping[str, Any], study: str, number: int) -> LearnConfig:
+def trial_config(base: LearnSettings, tune: TuneSettings, params: Mapping[str, Any], study: str,
+                 number: int) -> LearnSettings:
     """The training configuration of one trial: base + sampled parameters + the search's short budget."""
     over: dict[str, Any] = {PARAM_KEYS.get(k, k): v for k, v in params.items()}
     over.update({"trainer.max_epochs": tune.max_epochs, "data.train_windows_per_epoch": tune.train_windows_per_epoch,
@@ -120,7 +121,7 @@ def trial_config(base: LearnConfig, tune: TuneCfg, params: Mapping[str, Any], st
 _CACHE: dict[str, Any] = {}
 
 
-def _prepared(base: LearnConfig, need_ef: bool):
+def _prepared(base: LearnSettings, need_ef: bool):
     """Read and prepare the data once per process (trials only differ in how they window it)."""
     from workbench.learn.datamodule import prepare_data
     from workbench.learn.windows import read_table
@@ -132,7 +133,7 @@ def _prepared(base: LearnConfig, need_ef: bool):
     return _CACHE[key]
 
 
-def make_objective(base: LearnConfig, tune: TuneCfg, study_name: str, parent_run_id: str | None, worker: int = 0,
+def make_objective(base: LearnSettings, tune: TuneSettings, study_name: str, parent_run_id: str | None, worker: int = 0,
                    command: str | None = None):
     """The Optuna objective: train one trial configuration, return its best validation loss."""
     from optuna_integration import PyTorchLightningPruningCallback
@@ -184,7 +185,7 @@ def run_worker(spec: Mapping[str, Any], report: Callable[[str], None] | None = N
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     base = config_from_dict(spec["config"])
-    tune = TuneCfg.from_dict(spec["tune"])
+    tune = TuneSettings.from_dict(spec["tune"])
     from workbench.learn.tune_storage import TrialSeededTPE, resolve_storage
 
     storage, _ = resolve_storage(spec["storage"], spec["study"], tune)
@@ -204,7 +205,7 @@ def run_worker(spec: Mapping[str, Any], report: Callable[[str], None] | None = N
                    gc_after_trial=False)
 
 
-def run_study(base: LearnConfig, tune: TuneCfg, *, fresh: bool = False,
+def run_study(base: LearnSettings, tune: TuneSettings, *, fresh: bool = False,
               report: Callable[[str], None] | None = None) -> dict:
     """Create/resume the study, run its trials in ``tune.workers`` processes, register the best; returns a summary.
 
@@ -256,7 +257,7 @@ def run_study(base: LearnConfig, tune: TuneCfg, *, fresh: bool = False,
             mlflow.end_run(status=status)
 
 
-def _share_threads(base: LearnConfig, tune: TuneCfg) -> LearnConfig:
+def _share_threads(base: LearnSettings, tune: TuneSettings) -> LearnSettings:
     """With several workers and automatic torch threads, the idle cores shared out among the workers."""
     if tune.workers > 1 and base.trainer.torch_threads == AUTO:
         # the idle cores are shared out among the worker processes, not claimed by each of them
@@ -264,7 +265,7 @@ def _share_threads(base: LearnConfig, tune: TuneCfg) -> LearnConfig:
     return base
 
 
-def _open_study(tune: TuneCfg, fresh: bool):
+def _open_study(tune: TuneSettings, fresh: bool):
     """The study (deleted first when ``fresh``), created or loaded; returns ``(study, storage, where)``."""
     import optuna
 
@@ -277,7 +278,7 @@ def _open_study(tune: TuneCfg, fresh: bool):
     return study, storage, where
 
 
-def _start_parent_run(base: LearnConfig, tune: TuneCfg, where: str) -> tuple[str | None, str | None]:
+def _start_parent_run(base: LearnSettings, tune: TuneSettings, where: str) -> tuple[str | None, str | None]:
     """The study's parent MLflow run, started with the settings logged; ``(run id, tracking URI)``, Nones untracked."""
     if not base.tracking.enabled:
         return None, None
@@ -294,7 +295,7 @@ def _start_parent_run(base: LearnConfig, tune: TuneCfg, where: str) -> tuple[str
     return parent.info.run_id, tracking_uri
 
 
-def _run_trials(spec: dict, tune: TuneCfg, report: Callable[[str], None] | None, study) -> float:
+def _run_trials(spec: dict, tune: TuneSettings, report: Callable[[str], None] | None, study) -> float:
     """This command's trials, in this process (one worker) or in worker processes; returns the seconds taken."""
     from workbench.learn.tune_workers import spawn_workers
 
@@ -306,7 +307,7 @@ def _run_trials(spec: dict, tune: TuneCfg, report: Callable[[str], None] | None,
     return time.perf_counter() - t0
 
 
-def _record_best(base: LearnConfig, tune: TuneCfg, summary: dict, elapsed: float, storage) -> None:
+def _record_best(base: LearnSettings, tune: TuneSettings, summary: dict, elapsed: float, storage) -> None:
     """When tracked: register the best trial's model (if asked) and log the study's metrics and summary."""
     if not base.tracking.enabled:
         return
@@ -322,7 +323,7 @@ def _record_best(base: LearnConfig, tune: TuneCfg, summary: dict, elapsed: float
     mlflow.log_dict(summary, "tune_summary.json")
 
 
-def _campaigns(base: LearnConfig) -> list[str]:
+def _campaigns(base: LearnSettings) -> list[str]:
     import polars as pl
 
     from workbench.learn.windows import expand_paths
@@ -336,11 +337,11 @@ def _campaigns(base: LearnConfig) -> list[str]:
     return sorted(set(ids))
 
 
-def _tune_dict(tune: TuneCfg) -> dict:
+def _tune_dict(tune: TuneSettings) -> dict:
     return {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in tune.__dict__.items()}
 
 
-def _register_best(base: LearnConfig, tune: TuneCfg, best: dict, storage) -> str:
+def _register_best(base: LearnSettings, tune: TuneSettings, best: dict, storage) -> str:
     """Register the best trial's model under ``tune.alias``, unless the alias already names a better trial.
 
     Workers on several machines each register at their end; one that read the study just before
