@@ -37,10 +37,10 @@ def decode_all(path: str) -> int:
 def score_one(args) -> int:
     root, tid = args
     from workbench.contract.trials import load_trials
-    from workbench.trials import ScoringParams, score_trial
+    from workbench.trials import ScoringSettings, score_trial
 
     folder, _ = load_trials(root)
-    p = ScoringParams(early_stop=False, overlay=False, pre_start_s=10.0)
+    p = ScoringSettings(early_stop=False, overlay=False, pre_start_s=10.0)
     return score_trial(folder.trial(tid), folder.robot, p).stats["frames_decoded"]
 
 

@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from workbench.hydro.ef import EmpiricalFormula
-from workbench.hydro.robot import RobotParams
+from workbench.hydro.robot import RobotSettings
 from workbench.hydro.simulator import GaitBatch, simulate
 
 
@@ -26,7 +26,7 @@ def main() -> None:
     # the paper's optimisation ranges (table II)
     gaits = GaitBatch.from_arrays(rng.uniform(-50, 10, b), rng.uniform(-80, -20, b), rng.uniform(0.2, 0.65, b),
                                   rng.uniform(0, 2 * np.pi, (b, 4)))
-    model, robot = EmpiricalFormula(), RobotParams()
+    model, robot = EmpiricalFormula(), RobotSettings()
     simulate(gaits.rows(slice(0, 2)), model, robot, duration_s=1.0)  # warm-up (imports, caches)
 
     batch_s = []

@@ -13,8 +13,8 @@ import yaml
 
 from workbench.cli import main
 from workbench.errors import ParamsError, WorkbenchError
-from workbench.hydro.drag import DragFitParams, PlateauParams
-from workbench.ingest.params import IngestParams
+from workbench.hydro.drag import DragFitSettings, PlateauSettings
+from workbench.ingest.params import IngestSettings
 from workbench.params import build, load_settings, read_section
 
 REPO = Path(__file__).resolve().parents[1]
@@ -79,15 +79,15 @@ def test_yaml_1_1_exponent_without_dot_is_a_number(tmp_path):
 def test_unknown_nested_key_names_file_key_path_suggestion_and_allowed_keys(tmp_path):
     f = _yaml(tmp_path / "drag.yaml", {"fit": {"plateau": {"smoth_s": 0.3}}})
     with pytest.raises(ParamsError) as info:
-        load_settings(DragFitParams, f, "fit")
+        load_settings(DragFitSettings, f, "fit")
     msg = str(info.value)
     assert "\n" not in msg and msg.startswith(f)
     assert "fit.plateau.smoth_s" in msg and "did you mean 'smooth_s'?" in msg
-    assert all(name in msg for name in PlateauParams.__dataclass_fields__)
+    assert all(name in msg for name in PlateauSettings.__dataclass_fields__)
     assert info.value.key == "fit.plateau.smoth_s" and info.value.path == f
     # a typo far from every key gets the list without a guess
     with pytest.raises(ParamsError, match=r"fit\.zzz: unknown setting 'zzz' \(allowed: plateau,") as info:
-        load_settings(DragFitParams, _yaml(tmp_path / "d2.yaml", {"fit": {"zzz": 1}}), "fit")
+        load_settings(DragFitSettings, _yaml(tmp_path / "d2.yaml", {"fit": {"zzz": 1}}), "fit")
     assert "did you mean" not in str(info.value)
 
 
@@ -115,20 +115,20 @@ def test_wrong_types_and_failed_checks_name_the_key(tmp_path, doc, key, fault):
 def test_which_file_and_which_section(tmp_path, monkeypatch):
     monkeypatch.setenv("WORKBENCH_HOME", str(tmp_path))
     # no --params and no default file: built-in defaults
-    assert load_settings(DragFitParams, None, "fit", default="pipelines/drag.yaml") == DragFitParams()
-    assert load_settings(DragFitParams, "pipelines/drag.yaml", "fit", default="pipelines/drag.yaml") == DragFitParams()
+    assert load_settings(DragFitSettings, None, "fit", default="pipelines/drag.yaml") == DragFitSettings()
+    assert load_settings(DragFitSettings, "pipelines/drag.yaml", "fit", default="pipelines/drag.yaml") == DragFitSettings()
     # the default file, found under the project root
     (tmp_path / "pipelines").mkdir()
     _yaml(tmp_path / "pipelines" / "drag.yaml", {"fit": {"min_speeds": 7}})
-    assert load_settings(DragFitParams, None, "fit", default="pipelines/drag.yaml").min_speeds == 7
+    assert load_settings(DragFitSettings, None, "fit", default="pipelines/drag.yaml").min_speeds == 7
     # an explicit file that is not there is an error, not the defaults
     with pytest.raises(ParamsError, match="elsewhere.yaml: parameter file not found"):
-        load_settings(DragFitParams, tmp_path / "elsewhere.yaml", "fit", default="pipelines/drag.yaml")
+        load_settings(DragFitSettings, tmp_path / "elsewhere.yaml", "fit", default="pipelines/drag.yaml")
     # a file without the section: an error naming the sections there (or the defaults, when optional)
     other = _yaml(tmp_path / "ingest.yaml", {"ingest": {"lowpass_order": 2}})
     with pytest.raises(ParamsError, match=r"no section 'fit' in parameter file \(sections: ingest\)"):
-        load_settings(DragFitParams, other, "fit")
-    assert load_settings(DragFitParams, other, "fit", required=False) == DragFitParams()
+        load_settings(DragFitSettings, other, "fit")
+    assert load_settings(DragFitSettings, other, "fit", required=False) == DragFitSettings()
     with pytest.raises(ParamsError, match="did you mean 'ingest'"):
         read_section(other, "injest")
     # a section written as null is empty; a section that is not a mapping is an error
@@ -143,8 +143,8 @@ def test_dotted_section_and_overrides(tmp_path):
     with pytest.raises(ParamsError, match="no section 'optimize.nsgaa'"):
         read_section(f, "optimize.nsgaa")
     # CLI flags on top; a flag left at None keeps the file's value
-    assert load_settings(IngestParams, f, "ingest", overrides={"workers": 2}).workers == 2
-    assert load_settings(IngestParams, f, "ingest", overrides={"workers": None}).workers == 1
+    assert load_settings(IngestSettings, f, "ingest", overrides={"workers": 2}).workers == 2
+    assert load_settings(IngestSettings, f, "ingest", overrides={"workers": None}).workers == 1
 
 
 def test_not_yaml_names_the_line(tmp_path):
@@ -155,10 +155,10 @@ def test_not_yaml_names_the_line(tmp_path):
 
 
 def test_build_accepts_a_ready_instance_and_refuses_a_non_mapping():
-    s = DragFitParams(min_speeds=3)
-    assert build(DragFitParams, s, key="fit") is s
+    s = DragFitSettings(min_speeds=3)
+    assert build(DragFitSettings, s, key="fit") is s
     with pytest.raises(ParamsError, match="fit: must be a mapping of settings, not str"):
-        build(DragFitParams, "sem", key="fit")
+        build(DragFitSettings, "sem", key="fit")
 
 
 def _repository_sections():
@@ -171,15 +171,15 @@ def _repository_sections():
     from workbench.hydro.robot import BodyDragSettings, LegsSettings, RobotBodySettings
     from workbench.learn.config import EvaluateSettings, LearnSettings
     from workbench.learn.tune import TuneSettings
-    from workbench.signals.interpolation import InterpolationParams
-    from workbench.trials.params import ScoringParams
+    from workbench.signals.interpolation import InterpolationSettings
+    from workbench.trials.params import ScoringSettings
     from workbench.virtual_lab.physics import TruthSettings
     from workbench.virtual_lab.pool_settings import PoolSettings
 
-    return [(IngestParams, "pipelines/ingest.yaml", "ingest"),
-            (InterpolationParams, "pipelines/ingest.yaml", "interpolate"),
-            (DragFitParams, "pipelines/drag.yaml", "fit"),
-            (ScoringParams, "pipelines/trials.yaml", "scoring"),
+    return [(IngestSettings, "pipelines/ingest.yaml", "ingest"),
+            (InterpolationSettings, "pipelines/ingest.yaml", "interpolate"),
+            (DragFitSettings, "pipelines/drag.yaml", "fit"),
+            (ScoringSettings, "pipelines/trials.yaml", "scoring"),
             (NSGA2Settings, "pipelines/gait.yaml", "optimize.nsga2"),
             (LearnSettings, "pipelines/learn.yaml", "train"),
             (TuneSettings, "pipelines/learn.yaml", "tune"),
@@ -361,3 +361,46 @@ def test_set_dotted_makes_sections_and_build_names_a_misspelt_key():
         build(DemoSettings, doc, key="demo", path="d.yaml")
     with pytest.raises(ParamsError, match=r"^d\.yaml, demo\.label\.x: 'label' is not a section"):
         set_dotted(doc, "label.x", 1, section="demo", path="d.yaml")
+
+
+ALIASES = {  # the names before issue 17 -> the settings class they stand for (kept for outside imports)
+    "workbench.hydro.drag": {"DragFitParams": "DragFitSettings", "PlateauParams": "PlateauSettings"},
+    "workbench.hydro.robot": {"RobotParams": "RobotSettings"},
+    "workbench.signals.interpolation": {"InterpolationParams": "InterpolationSettings"},
+    "workbench.ingest.params": {"IngestParams": "IngestSettings"},
+    "workbench.trials.params": {"ScoringParams": "ScoringSettings"},
+    "workbench.virtual_lab.physics": {"TruthParams": "TruthSettings"},
+    "workbench.gait.config": {"OptimizeConfig": "OptimizeSettings"},
+    "workbench.learn.tune": {"TuneCfg": "TuneSettings"},
+    "workbench.learn.config": {"LearnConfig": "LearnSettings", "SplitCfg": "SplitSettings", "DataCfg": "DataSettings",
+                               "ModelCfg": "ModelSettings", "OptimCfg": "OptimSettings",
+                               "TrainerCfg": "TrainerSettings", "TrackingCfg": "TrackingSettings"},
+}
+
+
+def test_old_settings_names_are_the_same_classes():
+    import importlib
+
+    for module, names in ALIASES.items():
+        mod = importlib.import_module(module)
+        for old, new in names.items():
+            assert getattr(mod, old) is getattr(mod, new), f"{module}.{old}"
+
+
+def test_the_package_uses_one_name_per_settings_class():
+    """The old names are defined once, as aliases, and used nowhere else in the package (one naming)."""
+    import re
+
+    old = sorted(n for names in ALIASES.values() for n in names)
+    word = re.compile(r"\b(%s)\b" % "|".join(old))
+    uses = []
+    for path in sorted((REPO / "workbench").rglob("*.py")):
+        for i, line in enumerate(path.read_text().splitlines(), 1):
+            m = word.search(line)
+            if not m or re.match(r"^(%s) = \w+Settings$" % "|".join(old), line):
+                continue
+            if path.name == "__init__.py" or "name before issue 17" in line or "earlier names" in line \
+                    or line.lstrip().startswith(("``", "...")):
+                continue  # re-exports for outside imports, and the docstrings that name the aliases
+            uses.append(f"{path.relative_to(REPO)}:{i}: {line.strip()}")
+    assert not uses, "\n".join(uses)

@@ -4,7 +4,7 @@
     .venv/bin/python docs/figures/draw_conventions.py --out DIR  # somewhere else
 
 The linkage is drawn with ``workbench.hydro.kinematics.leg_state`` and the robot with
-``workbench.hydro.robot.RobotParams``, so the pictures cannot drift from the code. Output is
+``workbench.hydro.robot.RobotSettings``, so the pictures cannot drift from the code. Output is
 byte-for-byte reproducible (fixed pose, Agg backend, no timestamp in the PNG metadata).
 """
 
@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Arc, FancyArrowPatch  # noqa: E402
 
 from workbench.hydro.kinematics import DEFAULT_GEOMETRY, leg_state  # noqa: E402
-from workbench.hydro.robot import LEG_NAMES, RobotParams  # noqa: E402
+from workbench.hydro.robot import LEG_NAMES, RobotSettings  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 #: the pose drawn (deg): a mid-stroke leg
@@ -112,7 +112,7 @@ def draw_leg(path: Path) -> None:
 
 def draw_robot(path: Path) -> None:
     """Top view (body frame, legs, world frame, yaw) and front view (HAA abduction, mirrored legs)."""
-    robot = RobotParams()
+    robot = RobotSettings()
     haa = np.asarray(robot.haa_position_m)
     hips = robot.hip_positions_m()
     rot, _ = robot.leg_rotations()

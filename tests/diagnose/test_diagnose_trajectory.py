@@ -11,7 +11,7 @@ import pytest
 from workbench.commands.diagnose_trajectory import read_track_gaits, read_tracks
 from workbench.diagnose.trajectory import TrajectorySettings, diagnose_trajectories, simulate_tracks
 from workbench.hydro.ef import EmpiricalFormula
-from workbench.hydro.robot import RobotParams
+from workbench.hydro.robot import RobotSettings
 from workbench.hydro.simulator import GaitBatch, simulate
 
 GAITS = [  # theta_h_min, theta_k_max, f, alpha (LF, RF, LH, RH)
@@ -26,7 +26,7 @@ def _write_trials(root, current=(0.0, 0.0), yaw_dps=0.0, seed=0):
     rng = np.random.default_rng(seed)
     g = GaitBatch.from_arrays([a for a, *_ in GAITS], [b for _, b, *_ in GAITS], [f for _, _, f, _ in GAITS],
                               [al for *_, al in GAITS])
-    tr = simulate(g, EmpiricalFormula(), RobotParams(), duration_s=40.0)
+    tr = simulate(g, EmpiricalFormula(), RobotSettings(), duration_s=40.0)
     (root / "trajectories").mkdir(parents=True)
     gaits_dir = root / "gaits"
     gaits_dir.mkdir()
@@ -63,7 +63,7 @@ def _write_trials(root, current=(0.0, 0.0), yaw_dps=0.0, seed=0):
 def test_planted_current_and_yaw_drift_are_recovered(tmp_path, current, yaw):
     scores, gaits = _write_trials(tmp_path, current, yaw)
     tracks = read_tracks(scores)
-    sims = simulate_tracks(tracks, read_track_gaits(gaits, tracks), EmpiricalFormula(), RobotParams(),
+    sims = simulate_tracks(tracks, read_track_gaits(gaits, tracks), EmpiricalFormula(), RobotSettings(),
                            TrajectorySettings())
     d = diagnose_trajectories(tracks, sims, "ef")
     names = {e["name"]: e for e in d.effects}
@@ -86,7 +86,7 @@ def test_planted_current_and_yaw_drift_are_recovered(tmp_path, current, yaw):
 def test_nothing_claimed_when_the_simulator_is_right(tmp_path):
     scores, gaits = _write_trials(tmp_path)
     tracks = read_tracks(scores)
-    sims = simulate_tracks(tracks, read_track_gaits(gaits, tracks), EmpiricalFormula(), RobotParams(),
+    sims = simulate_tracks(tracks, read_track_gaits(gaits, tracks), EmpiricalFormula(), RobotSettings(),
                            TrajectorySettings())
     d = diagnose_trajectories(tracks, sims, "ef")
     assert d.effects == [] and d.unexplained == []

@@ -9,6 +9,6 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 @pytest.fixture(scope="session")
 def robot():
-    from workbench.hydro.robot import RobotParams
+    from workbench.hydro.robot import RobotSettings
 
-    return RobotParams()
+    return RobotSettings()

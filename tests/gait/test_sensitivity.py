@@ -7,7 +7,7 @@ from workbench.errors import ConvergenceError, SettingError
 from workbench.gait.objectives import TaskSpec
 from workbench.gait.sensitivity import FACTORS, Factor, robot_with, run_sensitivity
 from workbench.hydro.legmodel import load_leg_model
-from workbench.hydro.robot import RobotParams
+from workbench.hydro.robot import RobotSettings
 from workbench.hydro.simulator import GaitBatch
 
 GAITS = GaitBatch.from_params([
@@ -18,7 +18,7 @@ GAITS = GaitBatch.from_params([
 
 
 def test_robot_with_sets_the_constants_and_makes_low_speed_drag_linear():
-    base = RobotParams()
+    base = RobotSettings()
     r = robot_with(base, {"yaw_inertia_kgm2": 0.04, "extra_yaw_damping_nms": 0.01, "drag_linear_below_mps": 0.08})
     assert r.yaw_inertia_kgm2 == 0.04 and r.extra_yaw_damping_nms == 0.01
     c2, c1, _ = base.forward_drag.coefficients
@@ -41,7 +41,7 @@ def test_sobol_study_finds_the_only_factor_that_matters():
     factors = (Factor("extra_yaw_damping_nms", 0.0, 0.05, "N m s", "test"),
                Factor("added_mass_forward_kg", 0.2, 0.2001, "kg", "test"))
     spec = TaskSpec("turn", cap_s=3.0, target_yaw_deg=90.0)
-    res = run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotParams(), spec, n=16,
+    res = run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotSettings(), spec, n=16,
                           settings={"dt_s": 1 / 65, "relaxation": 0.6}, factors=factors)
     assert res.scores.shape == (16 * 4, 3)
     assert not res.unconverged
@@ -55,20 +55,20 @@ def test_sobol_study_finds_the_only_factor_that_matters():
 
 def test_power_of_two_required():
     with pytest.raises(SettingError, match="power of 2"):
-        run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotParams(), TaskSpec("turn", cap_s=1.0,
+        run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotSettings(), TaskSpec("turn", cap_s=1.0,
                         target_yaw_deg=90.0), n=6)
 
 
 def test_a_nominal_swim_that_did_not_converge_is_a_convergence_error():
     # one fixed-point iteration per window cannot reach a residual of 1e-12 m/s: no score is a result
     with pytest.raises(ConvergenceError, match=r"nominal robot's simulation did not converge for a, b, c"):
-        run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotParams(),
+        run_sensitivity(GAITS, ["a", "b", "c"], load_leg_model("ef"), RobotSettings(),
                         TaskSpec("turn", cap_s=1.0, target_yaw_deg=90.0), n=2,
                         settings={"max_iter": 1, "tol_mps": 1e-12})
 
 
 def test_factor_ranges_contain_the_nominal_robot():
-    base = RobotParams()
+    base = RobotSettings()
     for f in FACTORS:
         if hasattr(base, f.name):  # drag_linear_below_mps: its low end is the nominal law (tested above)
             assert f.low <= getattr(base, f.name) <= f.high, f.name

@@ -14,7 +14,7 @@ from scipy.signal import lfilter
 
 from workbench.hydro.ef import EmpiricalFormula
 from workbench.hydro.legmodel import LegForceModel
-from workbench.hydro.robot import RobotParams
+from workbench.hydro.robot import RobotSettings
 from workbench.hydro.simulator import DEFAULT_DT_S, BodyDrag, GaitBatch, legs_to_body, simulate
 
 EF = EmpiricalFormula()
@@ -22,7 +22,7 @@ EF = EmpiricalFormula()
 
 @pytest.fixture(scope="module")
 def robot():
-    return RobotParams()
+    return RobotSettings()
 _FIELDS = ("theta_h_deg", "theta_k_deg", "omega_h_dps", "omega_k_dps", "alpha_h_dps2", "alpha_k_dps2")
 
 

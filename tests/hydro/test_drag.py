@@ -9,7 +9,7 @@ import pytest
 from towing_fixture import PAPER, carriage_profile, towing_frame
 
 from workbench.errors import ContractError, DataError, ParamsError
-from workbench.hydro.drag import DragFitParams, PlateauParams, fit_drag, mean_sem, steady_window
+from workbench.hydro.drag import DragFitSettings, PlateauSettings, fit_drag, mean_sem, steady_window
 from workbench.project import load_params
 
 
@@ -36,7 +36,7 @@ def test_plateau_excludes_acceleration_and_trims_the_ends():
     rng = np.random.default_rng(0)
     noisy = v + rng.normal(0, 0.002, v.size)
     noisy[700] += 0.2  # a glitch in the speed log
-    window, v_ref, why = steady_window(t, noisy, PlateauParams())
+    window, v_ref, why = steady_window(t, noisy, PlateauSettings())
     assert why == "" and abs(v_ref - 0.2) < 0.002
     cruise = np.flatnonzero(a == 0)
     t_acc_end = 1.0 + 0.2 / 0.25
@@ -46,7 +46,7 @@ def test_plateau_excludes_acceleration_and_trims_the_ends():
     assert t[window][-1] - t[window][0] > 0.9 * ((3.0 - 0.16) / 0.2 - 0.7)
     # a carriage that never moves, and a tow too short to settle
     assert steady_window(t, np.zeros_like(t))[0] is None
-    short, _, why = steady_window(t, noisy, PlateauParams(min_duration_s=60.0))
+    short, _, why = steady_window(t, noisy, PlateauSettings(min_duration_s=60.0))
     assert short is None and "shorter than" in why
 
 
@@ -98,13 +98,13 @@ def test_scatter_and_few_speeds_are_flagged():
 
 def test_ordinary_least_squares_and_tare():
     frame = towing_frame(speeds=(0.1, 0.15, 0.2, 0.25, 0.3, 0.35))
-    ols = fit_drag(frame, params=DragFitParams(weighting="none"))
+    ols = fit_drag(frame, params=DragFitSettings(weighting="none"))
     for h in ols.headings():
         assert np.all(np.abs(np.array(h.coefficients) - PAPER[h.heading]) < 3 * np.array(h.stderr))
     # a load-cell zero offset of +0.05 N drifting 2 mN/s on fy: taring removes it (read at rest before and
     # after each tow, interpolated in time), otherwise it shifts the intercept
     shifted = frame.with_columns((pl.col("fy_n") + 0.05 + 0.002 * (pl.col("time_s") - 10.0)).alias("fy_n"))
-    raw = fit_drag(shifted, params=DragFitParams(tare=False))
+    raw = fit_drag(shifted, params=DragFitSettings(tare=False))
     tared = fit_drag(shifted)  # taring is the default
     assert abs(raw.forward.coefficients[2] - (0.334 - 0.05)) < 3 * raw.forward.stderr[2]
     # the fixture reads zero at rest, so taring moves the intercept back to the paper's
@@ -124,12 +124,12 @@ def test_drag_json_follows_the_contract(paper_fit):
 
 def test_parameters_from_the_repository_file_and_typos_refused():
     repo = Path(__file__).resolve().parents[2]  # the checkout (tests run with an isolated project root)
-    params = DragFitParams.from_dict(load_params(repo / "pipelines/drag.yaml", "fit"))
-    assert params == DragFitParams()
+    params = DragFitSettings.from_dict(load_params(repo / "pipelines/drag.yaml", "fit"))
+    assert params == DragFitSettings()
     with pytest.raises(ParamsError, match=r"fit\.plateau\.smoth_s.*did you mean .smooth_s"):
-        DragFitParams.from_dict({"plateau": {"smoth_s": 1.0}})
+        DragFitSettings.from_dict({"plateau": {"smoth_s": 1.0}})
     with pytest.raises(ParamsError, match="weighting"):
-        DragFitParams.from_dict({"weighting": "magic"})
+        DragFitSettings.from_dict({"weighting": "magic"})
 
 
 def test_missing_columns_refused():

@@ -11,7 +11,7 @@ from workbench.hydro.robot import (
     LEG_NAMES,
     PAPER_FORWARD_DRAG,
     DragLaw,
-    RobotParams,
+    RobotSettings,
     load_robot,
     robot_from_dict,
     rodrigues,
@@ -28,7 +28,7 @@ def test_rodrigues_matches_scipy(axis, angle):
 
 
 def test_haa_abduction_tilts_each_leg_outboard_and_up():
-    robot = RobotParams()
+    robot = RobotSettings()
     forces, torques = robot.leg_rotations()
     down = np.array([0.0, 0.0, -1.0])
     lf, rf, lh, rh = (forces[i] @ down for i in range(4))
@@ -46,7 +46,7 @@ def test_haa_abduction_tilts_each_leg_outboard_and_up():
 
 
 def test_right_legs_are_the_mirror_images_of_the_left():
-    robot = RobotParams()
+    robot = RobotSettings()
     forces, _ = robot.leg_rotations()
     m = np.diag([-1.0, 1.0, 1.0])
     np.testing.assert_allclose(forces[1], m @ forces[0])
@@ -80,7 +80,7 @@ def test_drag_law_drop_intercept_is_the_polynomial_without_c0():
 
 def test_repository_robot_yaml_matches_the_documented_defaults():
     loaded = load_robot(project_root() / "pipelines/robot.yaml")
-    assert loaded == RobotParams()
+    assert loaded == RobotSettings()
     assert loaded.drag_source == "paper"
 
 

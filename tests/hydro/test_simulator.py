@@ -7,7 +7,7 @@ from workbench.errors import ModelError
 from workbench.hydro.ef import EmpiricalFormula
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import JointSinusoid, LegMotion
-from workbench.hydro.robot import RobotParams
+from workbench.hydro.robot import RobotSettings
 from workbench.hydro.simulator import (
     DEFAULT_DT_S,
     BodyDrag,
@@ -18,7 +18,7 @@ from workbench.hydro.simulator import (
     simulate,
 )
 
-ROBOT = RobotParams()
+ROBOT = RobotSettings()
 EF = EmpiricalFormula()
 
 

@@ -18,7 +18,7 @@ from workbench import __version__
 from workbench.cli import main
 from workbench.contract.columns import TUNNEL_MOTION_PARAMS
 from workbench.ingest import (
-    IngestParams,
+    IngestSettings,
     ingest_campaign,
     ingest_to_file,
     quality_path,
@@ -101,7 +101,7 @@ def test_unchanged_inputs_and_params_are_not_reprocessed(campaign, tmp_path, cap
     path.write_text(path.read_text().replace("\n", "\r\n"))  # same numbers, other bytes
     assert ingest_to_file(root, out, params={"max_rest_s": 1.0}) is not None
     # the worker count is no result parameter
-    assert ingest_to_file(root, out, params=IngestParams(max_rest_s=1.0, workers=1)) is None
+    assert ingest_to_file(root, out, params=IngestSettings(max_rest_s=1.0, workers=1)) is None
 
 
 KILLER = r"""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import planted_ensemble
+from plan_fixtures import planted_ensemble
 
 from workbench.hydro.motion import JointSinusoid, LegMotion
 from workbench.plan.acquisition import IntegratedVariance, RigRanges, greedy_select, random_candidates

@@ -9,7 +9,7 @@ import pytest
 from workbench.contract.columns import WRENCH_CHANNELS
 from workbench.hydro.motion import JointSinusoid
 from workbench.signals.interpolation import (
-    InterpolationParams,
+    InterpolationSettings,
     interpolate_flow_speeds,
     interpolate_with_report,
 )
@@ -77,7 +77,7 @@ def test_common_window_and_measured_rows_unchanged(frame):
 
 
 def test_sets_with_too_few_speeds_are_reported_not_invented(frame):
-    _, report = interpolate_with_report(frame, InterpolationParams())
+    _, report = interpolate_with_report(frame, InterpolationSettings())
     assert len(report.skipped_sets) == 1 and report.skipped_sets[0]["runs"] == ["lonely"]
     assert report.made["a0@v0.150"] == ["a0", "a1", "a2", "a3"]
 

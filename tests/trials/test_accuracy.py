@@ -7,14 +7,14 @@ including a trial that never finishes and trials with a brief occlusion.
 import pytest
 from trials_helpers import truth_of
 
-from workbench.trials import ScoringParams, score_folder
+from workbench.trials import ScoringSettings, score_folder
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
 def scored(realistic_pool):
-    return score_folder(realistic_pool, ScoringParams(workers=2), show_progress=False), truth_of(realistic_pool)
+    return score_folder(realistic_pool, ScoringSettings(workers=2), show_progress=False), truth_of(realistic_pool)
 
 
 def test_every_trial_scored(scored):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from workbench.trials.clean import clean_pose, fill_gaps, hampel_mask, smooth_segments, start_heading
-from workbench.trials.params import ScoringParams
+from workbench.trials.params import ScoringSettings
 
 
 def test_hampel_flags_a_spike_only():
@@ -50,7 +50,7 @@ def test_clean_pose_rejects_a_wrong_marker_and_fills_an_occlusion():
     head[30] += [0.5, 0.5]            # a false detection
     head[60:70] = np.nan              # an occlusion of 0.7 s
     tail[60:70] = np.nan
-    pose = clean_pose(t, head, tail, np.eye(3), ScoringParams())
+    pose = clean_pose(t, head, tail, np.eye(3), ScoringSettings())
     assert not pose.detected[30]
     assert pose.filled[60:70].all()
     assert np.allclose(pose.x_m, 0.1 * t, atol=2e-3)

@@ -9,7 +9,7 @@ from trials_helpers import SMALL, fast_straight
 
 from workbench.cli import main
 from workbench.errors import DataError
-from workbench.trials import ScoringParams, run_scoring
+from workbench.trials import ScoringSettings, run_scoring
 from workbench.virtual_lab.pool import PoolSettings, generate_pool
 
 EXPECTED = {
@@ -76,7 +76,7 @@ def _digest(folder):
 def scored(bad_pool, tmp_path_factory):
     before = _digest(bad_pool)
     out = tmp_path_factory.mktemp("bad-out") / "scores"
-    result, summary = run_scoring(bad_pool, out, ScoringParams(workers=1, overlay=False, plots=False),
+    result, summary = run_scoring(bad_pool, out, ScoringSettings(workers=1, overlay=False, plots=False),
                                   show_progress=False)
     assert _digest(bad_pool) == before  # raw data never modified
     return result, summary, out
@@ -131,7 +131,7 @@ def test_nothing_scored_is_an_error_and_keeps_the_old_result(bad_pool, tmp_path,
     assert "no trial could be scored" in capsys.readouterr().err
     assert (out / "scores.csv").read_text() == "previous\n"
     with pytest.raises(DataError):
-        run_scoring(bad_pool, tmp_path / "x", ScoringParams(workers=1), trial_ids=["garbage-video"],
+        run_scoring(bad_pool, tmp_path / "x", ScoringSettings(workers=1), trial_ids=["garbage-video"],
                     show_progress=False)
     assert not (tmp_path / "x").exists()
 

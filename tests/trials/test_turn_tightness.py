@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from turn_videos import Camera, StraightCase, TurnCase, write_folder
 
-from workbench.trials import ScoringParams, score_folder
+from workbench.trials import ScoringSettings, score_folder
 from workbench.trials.clean import clean_pose, start_heading, start_position_along
 
 
@@ -37,7 +37,7 @@ def test_start_heading_unbiased_when_the_turn_starts_at_full_rate(rate_deg_s):
     for _ in range(40):
         h = psi0 + w * np.maximum(t - start, 0) + np.radians(1.0) * rng.standard_normal(t.size)
         head, tail = _pose(t, h)
-        pose = clean_pose(t, head, tail, np.eye(3), ScoringParams())
+        pose = clean_pose(t, head, tail, np.eye(3), ScoringSettings())
         errs.append(start_heading(pose, start, 1.0, 2.0) - psi0)
     errs = np.degrees(errs)
     # a quadratic across the kink would be off by 0.16 s x rate (1.3-3.2 degrees)
@@ -54,7 +54,7 @@ def test_start_heading_keeps_the_low_noise_fit_for_a_smooth_start():
     errs = []
     for _ in range(200):
         head, tail = _pose(t, truth + np.radians(1.0) * rng.standard_normal(t.size), y=0.1 * t)
-        pose = clean_pose(t, head, tail, np.eye(3), ScoringParams())
+        pose = clean_pose(t, head, tail, np.eye(3), ScoringSettings())
         errs.append(start_heading(pose, start, 1.0, 2.0) - 0.3)
     # a smooth fit over 3 s of 15 fps averages 1 degree of noise to ~0.2 degree; a kinked fit to ~0.4
     assert np.sqrt(np.mean(np.degrees(errs) ** 2)) < 0.3
@@ -105,7 +105,7 @@ def tight_turns(tmp_path_factory):
                     cases, 25.0))
     out = []
     for folder, cases, fps in folders:
-        res = score_folder(folder, ScoringParams(workers=2, overlay=False, plots=False), show_progress=False)
+        res = score_folder(folder, ScoringSettings(workers=2, overlay=False, plots=False), show_progress=False)
         assert not res.failures, [f.error for f in res.failures]
         for c in cases:
             r = next(r for r in res.results if r.spec.id == c.id)
@@ -145,7 +145,7 @@ def straight_runs(tmp_path_factory):
     cam = Camera("plain", 400, 300, (2.0, 2.6), 100.0)
     folder = write_folder(tmp_path_factory.mktemp("straight") / "straight", cases, cam, fps=25.0, head="red",
                           tail="green", seed=30)
-    res = score_folder(folder, ScoringParams(workers=2, overlay=False, plots=False), show_progress=False)
+    res = score_folder(folder, ScoringSettings(workers=2, overlay=False, plots=False), show_progress=False)
     assert not res.failures, [f.error for f in res.failures]
     return [(c, next(r for r in res.results if r.spec.id == c.id)) for c in cases]
 
@@ -170,7 +170,7 @@ def test_start_position_along_a_full_speed_start():
         head, tail = _pose(t, np.full_like(t, psi), x=1.0 + s * np.cos(psi), y=2.0 + s * np.sin(psi))
         head += 0.001 * rng.standard_normal(head.shape)
         tail += 0.001 * rng.standard_normal(tail.shape)
-        pose = clean_pose(t, head, tail, np.eye(3), ScoringParams())
+        pose = clean_pose(t, head, tail, np.eye(3), ScoringSettings())
         f0 = 1.0 * np.cos(psi) + 2.0 * np.sin(psi)
         along.append(start_position_along(pose, start, 1.0, 2.0, psi) - f0)
         x, y, _ = pose.at(start)
@@ -183,5 +183,5 @@ def test_start_position_along_a_full_speed_start():
 def test_start_position_along_keeps_the_smoothed_track_without_a_kink():
     t = np.arange(0, 6, 1 / 15)
     head, tail = _pose(t, np.full_like(t, 0.4), x=0.02 * t, y=0.05 * t)   # steady drift, no start
-    pose = clean_pose(t, head, tail, np.eye(3), ScoringParams())
+    pose = clean_pose(t, head, tail, np.eye(3), ScoringSettings())
     assert start_position_along(pose, 2.0, 1.0, 2.0, 0.4) is None

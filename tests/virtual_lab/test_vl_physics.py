@@ -9,7 +9,7 @@ from scipy import signal
 from workbench.errors import ModelError
 from workbench.hydro.ef import EmpiricalFormula
 from workbench.hydro.motion import JointSinusoid, LegMotion
-from workbench.virtual_lab.physics import TrueLegModel, TruthParams, first_order_lag
+from workbench.virtual_lab.physics import TrueLegModel, TruthSettings, first_order_lag
 from workbench.virtual_lab.settings import FLOW_SPEEDS_MPS, LoadCellSettings, demo_grid
 
 RATE = 130.0  # twice the control rate: the truth's lag states integrate accurately
@@ -101,7 +101,7 @@ def test_magnitudes_are_those_of_the_field_notes(demo_cases):
 
 
 def test_rich_truth_has_weight_buoyancy_and_lag():
-    p = TruthParams()
+    p = TruthSettings()
     m, _ = grid_motion(demo_grid()[:1], 0.0, cycles=1)
     still = LegMotion.from_arrays(0.01, np.full(50, -45.0), np.full(50, 0.0), 0.0, 0.0, 0.0, 0.0, 0.0)
     w = TrueLegModel("rich").wrench(still)[0]
@@ -111,8 +111,8 @@ def test_rich_truth_has_weight_buoyancy_and_lag():
     assert abs(w[0, 3]) > 1e-4  # ... at the leg's centre of gravity, off the hip: a torque
     # the circulatory force alone (no inertia): the lag delays it and cuts its amplitude (Theodorsen-like)
     circ = dict(added_mass_coeff=0.0, web_mass_kg=0.0, link_diameter_m=0.0, thigh_mass_kg=0.0, calf_mass_kg=0.0)
-    lagged = TrueLegModel("rich", TruthParams(**circ)).wrench(m)[0, :, 1]
-    quasi = TrueLegModel("rich", TruthParams(lag="none", **circ)).wrench(m)[0, :, 1]
+    lagged = TrueLegModel("rich", TruthSettings(**circ)).wrench(m)[0, :, 1]
+    quasi = TrueLegModel("rich", TruthSettings(lag="none", **circ)).wrench(m)[0, :, 1]
     a, b = lagged - lagged.mean(), quasi - quasi.mean()
     best = max(range(0, 30), key=lambda k: np.dot(a[k:], b[: len(b) - k]))
     assert 2 <= best <= 25  # 15 ms - 0.2 s at 130 Hz
@@ -142,8 +142,8 @@ def test_model_describes_itself_and_rejects_bad_settings():
     with pytest.raises(ModelError):
         TrueLegModel("nonsense")
     with pytest.raises(ModelError):
-        TrueLegModel("rich", TruthParams(lag="later"))
+        TrueLegModel("rich", TruthSettings(lag="later"))
     m, _ = grid_motion(demo_grid()[:2], 0.2, cycles=1)
     for lag in ("first_order", "none"):
-        w = TrueLegModel("rich", TruthParams(lag=lag)).wrench(m)
+        w = TrueLegModel("rich", TruthSettings(lag=lag)).wrench(m)
         assert np.isfinite(w).all()

@@ -33,12 +33,12 @@ def run_trajectories(args, t0: float) -> int:
     from workbench.commands.simulate import robot_simulation_settings
     from workbench.console import info
     from workbench.diagnose.trajectory import TrajectorySettings, diagnose_trajectories, reference_tracks
-    from workbench.hydro.robot import RobotParams, load_robot
+    from workbench.hydro.robot import RobotSettings, load_robot
     from workbench.params import load_settings
 
     settings = load_settings(TrajectorySettings, args.params, "diagnose.trajectory", default="pipelines/diagnose.yaml",
                              required=False)
-    robot, sim_kw = RobotParams(), {}
+    robot, sim_kw = RobotSettings(), {}
     if Path(args.robot).is_file():
         robot = load_robot(args.robot)
         sim_kw = robot_simulation_settings(args.robot)

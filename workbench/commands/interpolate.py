@@ -39,9 +39,9 @@ def run(args) -> int:
     from workbench.ingest import read_processed, read_provenance
     from workbench.ingest.provenance import to_arrow, write_table
     from workbench.params import load_settings
-    from workbench.signals.interpolation import InterpolationParams, interpolate_with_report
+    from workbench.signals.interpolation import InterpolationSettings, interpolate_with_report
 
-    params = load_settings(InterpolationParams, args.params, "interpolate", default=PARAMS_FILE,
+    params = load_settings(InterpolationSettings, args.params, "interpolate", default=PARAMS_FILE,
                            overrides={"speeds_mps": args.speeds or None, "extrapolate": args.extrapolate or None})
     meta = read_provenance(args.input)
     if meta.get("facility") != "water_tunnel":

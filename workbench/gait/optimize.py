@@ -22,7 +22,7 @@ from workbench.gait.objectives import score
 from workbench.gait.problem import GaitProblem
 from workbench.gait.run import Generation, OptimizeResult, hypervolume, non_dominated, run_nsga2
 from workbench.hydro.legmodel import LegForceModel
-from workbench.hydro.robot import RobotParams
+from workbench.hydro.robot import RobotSettings
 from workbench.hydro.simulator import Trajectory
 
 
@@ -120,7 +120,7 @@ def _converged_only(retained: OptimizeResult, traj: Trajectory, task: str,
     return kept, _rows(traj, keep), int((~ok).sum())
 
 
-def optimize_task(cfg: OptimizeSettings, task: str, leg_model: LegForceModel, robot: RobotParams, *,
+def optimize_task(cfg: OptimizeSettings, task: str, leg_model: LegForceModel, robot: RobotSettings, *,
                   model_label: str, model_spec: str | None = None,
                   on_generation: Callable[[Generation], None] | None = None, plots: bool = True,
                   workers: int | None = None) -> GaitOutcome:
@@ -154,7 +154,7 @@ def optimize_task(cfg: OptimizeSettings, task: str, leg_model: LegForceModel, ro
     return outcome
 
 
-def _search(cfg: OptimizeSettings, ts, task: str, problem: GaitProblem, robot: RobotParams, model_label: str,
+def _search(cfg: OptimizeSettings, ts, task: str, problem: GaitProblem, robot: RobotSettings, model_label: str,
             model_spec: str | None, on_generation, plots: bool, t0: float) -> GaitOutcome:
     """NSGA-II, the direct check or re-simulation, and the documents (see :func:`optimize_task`)."""
     leg_model = problem.leg_model

@@ -20,7 +20,7 @@ from workbench.gait.objectives import TaskSpec, objectives
 from workbench.gait.space import GaitSpace
 from workbench.gait.tabulate import TabulatedLegModel, TabulationSettings
 from workbench.hydro.legmodel import LegForceModel
-from workbench.hydro.robot import RobotParams
+from workbench.hydro.robot import RobotSettings
 from workbench.hydro.simulator import DEFAULT_DT_S, GaitBatch, Trajectory, simulate
 
 
@@ -72,7 +72,7 @@ class GaitProblem(Problem):
     (``log.unconverged``; the gait file and the MLflow run carry the count).
     """
 
-    def __init__(self, spec: TaskSpec, leg_model: LegForceModel, robot: RobotParams, *,
+    def __init__(self, spec: TaskSpec, leg_model: LegForceModel, robot: RobotSettings, *,
                  space: GaitSpace | None = None, sim: SimSettings | None = None,
                  tabulation: TabulationSettings | None = None):
         self.spec = spec

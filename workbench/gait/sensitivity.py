@@ -49,7 +49,7 @@ FACTORS = (
 
 
 def robot_with(robot, values: dict):
-    """A copy of ``robot`` (RobotParams) with the factors' values applied."""
+    """A copy of ``robot`` (RobotSettings) with the factors' values applied."""
     from workbench.hydro.robot import DragLaw
 
     kw = {k: float(v) for k, v in values.items() if k != "drag_linear_below_mps"}

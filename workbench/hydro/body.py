@@ -14,10 +14,10 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from workbench.hydro.robot import RobotParams
+from workbench.hydro.robot import RobotSettings
 
 
-def planar_coefficients(robot: RobotParams) -> np.ndarray:
+def planar_coefficients(robot: RobotSettings) -> np.ndarray:
     """(3, 4, 6): body fx, fy, tz about the metacenter as linear maps of each leg's load-cell wrench."""
     a_force, a_torque = robot.leg_rotations()
     p = robot.hip_positions_m()
@@ -39,7 +39,7 @@ def planar_sum(planar: np.ndarray, w_leg: np.ndarray) -> np.ndarray:
     return acc
 
 
-def legs_to_body(robot: RobotParams, loadcell_wrench: np.ndarray) -> np.ndarray:
+def legs_to_body(robot: RobotSettings, loadcell_wrench: np.ndarray) -> np.ndarray:
     """Load-cell wrenches ``(B, 4, T, 6)`` -> body-frame wrenches about the metacenter (same shape).
 
     F_mc = A F_leg and tau_mc = p x F_mc + A_tau tau_leg (paper equations 5-6), with A the HAA
@@ -52,7 +52,7 @@ def legs_to_body(robot: RobotParams, loadcell_wrench: np.ndarray) -> np.ndarray:
     return np.concatenate([f, np.cross(np.broadcast_to(p, f.shape), f) + tau], axis=-1)
 
 
-def leg_flow_speeds(robot: RobotParams, vx: np.ndarray, vy: np.ndarray, r: np.ndarray) -> np.ndarray:
+def leg_flow_speeds(robot: RobotSettings, vx: np.ndarray, vy: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Flow speed each leg sees, ``(B, 4, T)``: its hip's velocity through still water along its +y.
 
     A leg at hip h moves with v + omega x h; the tunnel's flow along the load cell's -y at speed U
@@ -80,7 +80,7 @@ class BodyDrag:
     velocities (B, 3) -> the speed of each drag element (B, 1 + n) -> drag -> (fx, fy, tz).
     """
 
-    def __init__(self, robot: RobotParams):
+    def __init__(self, robot: RobotSettings):
         n = robot.strip_stations if robot.body_length_m > 0 else 1
         x, w = np.polynomial.legendre.leggauss(n)
         s = robot.body_length_m / 2 * x
@@ -137,12 +137,12 @@ def _law_terms(law) -> tuple[float, float, float, float, float]:
     return c2, c1, c0, v0, slope
 
 
-def body_drag(robot: RobotParams, vx, vy, r) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def body_drag(robot: RobotSettings, vx, vy, r) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Body drag (fx, fy, tz) of the robot at body-frame velocities (see :class:`BodyDrag`)."""
     return BodyDrag(robot)(vx, vy, r)
 
 
-def integrate_body(robot: RobotParams, leg_planar: np.ndarray, dt_s: float) -> dict[str, np.ndarray]:
+def integrate_body(robot: RobotSettings, leg_planar: np.ndarray, dt_s: float) -> dict[str, np.ndarray]:
     """Integrate the planar body motion from rest under the legs' force and yaw torque.
 
     ``leg_planar`` is (B, T, 3): the legs' summed fx, fy (N) and tz (N m) in the body frame.
@@ -153,7 +153,7 @@ def integrate_body(robot: RobotParams, leg_planar: np.ndarray, dt_s: float) -> d
     return integrate_stepwise(robot, lambda n, v: legs[n], t, b, dt_s)
 
 
-def integrate_stepwise(robot: RobotParams, leg_forces: Callable[[int, np.ndarray], np.ndarray], n_ticks: int,
+def integrate_stepwise(robot: RobotSettings, leg_forces: Callable[[int, np.ndarray], np.ndarray], n_ticks: int,
                        batch: int, dt_s: float, *, start: "BodyState | None" = None) -> dict[str, np.ndarray]:
     """The integrator itself, asking the legs' (B, 3) = (fx, fy, tz) tick by tick: ``leg_forces(n, v)``.
 

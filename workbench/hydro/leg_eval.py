@@ -24,7 +24,7 @@ from workbench.hydro.body import (
 from workbench.hydro.gait_batch import GaitBatch
 from workbench.hydro.legmodel import LegForceModel
 from workbench.hydro.motion import LegMotion
-from workbench.hydro.robot import RobotParams
+from workbench.hydro.robot import RobotSettings
 
 
 def leg_wrench_provider(leg_model: LegForceModel, motion: LegMotion) -> Callable[[np.ndarray], np.ndarray]:
@@ -69,7 +69,7 @@ class FlowMap:
     the leg-model calls (a simulation's ``iterations``).
     """
 
-    def __init__(self, gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, t: np.ndarray, dt_s: float):
+    def __init__(self, gaits: GaitBatch, leg_model: LegForceModel, robot: RobotSettings, t: np.ndarray, dt_s: float):
         self.b, self.n = len(gaits), t.size
         self.robot, self.dt_s = robot, dt_s
         self.motion = gaits.leg_motion(t)

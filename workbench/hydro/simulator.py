@@ -2,7 +2,7 @@
 
 Each leg runs the paper's joint sinusoid (equation 3) with its own phase alpha. A leg force model
 (any :class:`LegForceModel`: EF, FED-LSTM, augmented) predicts each leg's load-cell wrench from
-its joint history and the flow it sees; :class:`RobotParams` turns that into a wrench about the
+its joint history and the flow it sees; :class:`RobotSettings` turns that into a wrench about the
 metacenter (HAA rotation by Rodrigues' formula, mirror image for right legs, p x F + R tau).
 The body integrates surge, sway and yaw in its own frame with added mass, body drag and
 cross-flow yaw damping, and the world position follows through the yaw rotation.
@@ -50,7 +50,7 @@ from workbench.hydro.fixed_point import (
 from workbench.hydro.gait_batch import PHI_RAD, THETA_H_MAX_DEG, THETA_K_MIN_DEG, GaitBatch
 from workbench.hydro.leg_eval import FlowMap, leg_wrench_provider
 from workbench.hydro.legmodel import LegForceModel
-from workbench.hydro.robot import LEG_NAMES, RobotParams
+from workbench.hydro.robot import LEG_NAMES, RobotSettings
 
 #: the names callers import from here (the simulator's parts live in gait_batch, body, leg_eval, fixed_point)
 __all__ = [
@@ -168,7 +168,7 @@ def simulation_settings(doc: Mapping | None, *, path=None, key: str = "simulatio
     return {k: v for k, v in settings.__dict__.items() if v is not None}
 
 
-def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotParams, *, duration_s: float = 20.0,
+def simulate(gaits: GaitBatch, leg_model: LegForceModel, robot: RobotSettings, *, duration_s: float = 20.0,
              dt_s: float = DEFAULT_DT_S, tol_mps: float = 1e-5, max_iter: int = 40, relaxation: float = 1.0,
              method: str = "windowed", window_s: float = 20.0, max_window_s: float = 60.0,
              anderson: int = 5, initial_flow: np.ndarray | None = None,

@@ -92,9 +92,9 @@ def plan_campaign(ensemble, gait_files: Sequence, n_runs: int, out: str | Path, 
     t0 = time.perf_counter()
     if region is None:
         if robot is None:
-            from workbench.hydro.robot import RobotParams
+            from workbench.hydro.robot import RobotSettings
 
-            robot = RobotParams()
+            robot = RobotSettings()
         region = operating_region(gait_files, robot, duration_s=s.swim_s, cycles=s.region_cycles,
                                   points_per_cycle=s.region_points_per_cycle, legs=legs)
     t_region = time.perf_counter()

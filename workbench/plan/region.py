@@ -113,7 +113,7 @@ def operating_region(files: Sequence[GaitFile], robot, *, duration_s: float = 12
     """Swim every retained gait (full-body simulator) and keep each leg's last ``cycles`` cycles.
 
     ``files``: the gait files (:func:`gait_files_from_docs`); ``robot``: the robot's constants
-    (:class:`workbench.hydro.robot.RobotParams`, the command loads them). Each gait file's gaits
+    (:class:`workbench.hydro.robot.RobotSettings`, the command loads them). Each gait file's gaits
     are swum together, with the legs ``legs(path, doc, gaits)`` returns (a model and a note;
     ``None``: EF), else ``leg_model``, else the EF. An unconverged swim is an error (its states
     would be made up).

@@ -99,7 +99,7 @@ class Effect:
         raise NotImplementedError
 
     def force_changes(self, params) -> dict:
-        """Changes to the truth's :class:`~workbench.virtual_lab.physics.TruthParams`."""
+        """Changes to the truth's :class:`~workbench.virtual_lab.physics.TruthSettings`."""
         raise NotImplementedError
 
     def apply_reading(self, wrench: np.ndarray, t_since_edge_s: np.ndarray, t_daq_s: np.ndarray,

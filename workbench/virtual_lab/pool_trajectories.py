@@ -133,7 +133,7 @@ def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None
     one-line ConvergenceError naming the gait file and the solution: it is not a trial's truth.
     """
     try:
-        from workbench.hydro.robot import RobotParams, load_robot
+        from workbench.hydro.robot import RobotSettings, load_robot
         from workbench.hydro.simulator import GaitBatch, simulate
     except ImportError as exc:
         raise ModelError(f"the full-body simulator is not available ({exc})",
@@ -153,7 +153,7 @@ def simulated_trials(gaits_dir: str | Path, s: PoolSettings, *, on_progress=None
             for sol in doc["solutions"][: s.best]:
                 groups.setdefault(key, []).append((model, task, int(sol["rank"]), sol["params"], path))
     robot_path = Path(s.robot_params)
-    robot = load_robot(robot_path) if robot_path.is_file() else RobotParams()
+    robot = load_robot(robot_path) if robot_path.is_file() else RobotSettings()
     settings = _sim_settings(robot_path)
     leg_model = _physics(s.physics)
     made: dict[tuple[str, str, int], PoolTrial] = {}
