@@ -191,12 +191,14 @@ def _tone_tests(rng, amplitude: float) -> tuple[float, float]:
     return split["p"], cv["p"]
 
 
+@pytest.mark.slow  # 6-17 s on a slow shared 2-core machine (1 Dec 2026)
 def test_a_per_run_fit_judged_over_every_run_keeps_its_level_on_noise():
     rng = np.random.default_rng(11)
     p = np.array([_tone_tests(rng, 0.0) for _ in range(16)])
     assert (p[:, 1] < 0.01).sum() <= 1, p[:, 1]
 
 
+@pytest.mark.slow  # 6-17 s on a slow shared 2-core machine (1 Dec 2026)
 def test_a_per_run_fit_judged_over_every_run_finds_a_tone_the_held_out_runs_alone_miss():
     rng = np.random.default_rng(12)
     p = np.array([_tone_tests(rng, 0.11) for _ in range(12)])

@@ -56,6 +56,7 @@ def test_two_rounds_claim_both_and_flag_nothing(frame):
     assert "Not converged" not in markdown(d, {})
 
 
+@pytest.mark.slow  # 6-17 s on a slow shared 2-core machine (1 Dec 2026)
 def test_a_final_fit_short_of_its_fixed_point_is_flagged(frame, monkeypatch, tmp_path):
     """The fixed-point record of every fit says not settled (its numbers are the real ones): the diagnosis,
     its report and the demo report's section say so beside the claims."""

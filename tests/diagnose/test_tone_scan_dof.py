@@ -12,6 +12,7 @@ a real tone there.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy import signal
 
 from workbench.diagnose.evidence_base import EvidenceSettings, RunResidual
@@ -56,6 +57,7 @@ def _runs(rng, tone_fraction: float = 0.0, tone_hz: float = 1.0):
     return runs, gains
 
 
+@pytest.mark.slow  # 6-17 s on a slow shared 2-core machine (1 Dec 2026)
 def test_the_scan_spread_under_noise_matches_its_degrees_of_freedom_below_and_above_the_loud_band():
     s = EvidenceSettings()
     weights = np.ones(6)
@@ -79,6 +81,7 @@ def test_the_scan_spread_under_noise_matches_its_degrees_of_freedom_below_and_ab
     assert dofs[int(np.argmin(abs(freqs - 1.0)))] > 4 * dofs[int(np.argmin(abs(freqs - 5.0)))]
 
 
+@pytest.mark.slow  # 6-17 s on a slow shared 2-core machine (1 Dec 2026)
 def test_a_3pc_tone_among_runs_of_unequal_colour_is_found_and_noise_alone_gives_no_line_there():
     s = EvidenceSettings()
     weights = np.ones(6)
