@@ -57,3 +57,25 @@ def test_a_lab_sets_the_band_in_the_pipeline_files_library_options():
     rng = np.random.default_rng(0)
     pred = rng.normal(size=(200, 6))
     assert xt.configured(pred, np.ones(200, bool)).negligible_of("x_fy_fz") == 0.005
+
+
+def test_a_lever_arm_band_applies_to_torques_read_from_forces_only():
+    """``lever_floor`` (m): a ty-from-fz lever of 0.37 mm (interval 0.07-0.66 mm; the EF's misfit on
+    campaigns without still-water runs) is refused with a 1 mm band, a 20 mm one is claimed."""
+    xt = make_effect("loadcell_crosstalk").from_options({"lever_floor": 0.001})
+    assert xt.negligible_of("x_ty_fz") == 0.001 and xt.negligible_of("x_tx_fy") == 0.001
+    assert xt.negligible_of("x_fz_fy") == 0.0 and xt.negligible_of("x_fz_ty") == 0.0  # shares keep theirs
+    assert make_effect("loadcell_crosstalk").negligible_of("x_ty_fz") == 0.0  # the default: zero itself
+
+    def report(x, se):
+        return EffectReport("loadcell_crosstalk", ["ty_nm"], {"x_ty_fz": x}, {"x_ty_fz": se}, "", 0.0, {}, {}, [])
+
+    why = _claim_faults(report(-0.00037, 0.00015), xt, DiagnoseSettings())
+    assert why is not None and "negligible band" in why and "x_ty_fz" in why
+    assert _claim_faults(report(0.02, 0.0005), xt, DiagnoseSettings()) is None
+    assert _claim_faults(report(-0.00037, 0.00015), make_effect("loadcell_crosstalk"), DiagnoseSettings()) is None
+    # the configured copy a diagnosis fits keeps the band
+    import numpy as np
+
+    pred = np.random.default_rng(1).normal(size=(200, 6))
+    assert xt.configured(pred, np.ones(200, bool)).negligible_of("x_tz_fx") == 0.001
