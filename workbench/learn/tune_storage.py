@@ -119,6 +119,15 @@ def command_runs_here(command: dict) -> bool:
     return not owner_is_dead(command)
 
 
+#: how far two processes' readings of one process's start time (s) may differ and still name it. psutil's
+#: ``create_time`` is the start since boot plus the boot time, which Linux gives as whole seconds of the wall
+#: clock (``/proc/stat`` btime): when the clock is corrected, a process read later sees its owner's start a
+#: second off. With the 0.01 s of before, ``make test`` (1 Dec 2026, a loaded VM) had one tune command fail
+#: the other's running trial as "dead" and that command crash on telling it. A PID is reused only after the
+#: kernel has gone round its whole PID space (32,768 here), not within seconds.
+START_TOLERANCE_S = 2.0
+
+
 def owner_is_dead(owner: Any) -> bool:
     """True when ``owner`` (host, pid, process start time) names a process of this machine that is gone."""
     import psutil
@@ -127,7 +136,8 @@ def owner_is_dead(owner: Any) -> bool:
         return False
     try:
         proc = psutil.Process(int(owner["pid"]))
-        return abs(proc.create_time() - float(owner["ctime"])) > 0.01 or proc.status() == psutil.STATUS_ZOMBIE
+        return (abs(proc.create_time() - float(owner["ctime"])) > START_TOLERANCE_S
+                or proc.status() == psutil.STATUS_ZOMBIE)
     except psutil.NoSuchProcess:
         return True
     except (psutil.Error, KeyError, TypeError, ValueError):
