@@ -146,8 +146,9 @@ class LoadcellCrosstalk(Effect):
                         aliases[self.entry(i, dup)] = (aliases.get(self.entry(i, dup), "")
                                                        + f" + {ratio:.4g} {self.entry(i, j)}")
         pairs = [(i, j) for j in sorted(keep) for i in range(6) if i != j]
-        return type(self)(pairs, aliases, self.misfit_guard, self.judge_beside_misfit, self.misfit_flow_degree,
-                          self.guard_own, self.floor, self.lever_floor)
+        # every other option as this one has it (options() is the one list of them)
+        kept = {k: v for k, v in self.options().items() if k not in ("pairs", "aliases")}
+        return type(self)(pairs, aliases, **kept)
 
     def reading_inverse(self, nl: dict, coefs: dict, dt_s: float):
         """Reading = (I + X) W: the residual through (I + X)^-1 along the channels."""
