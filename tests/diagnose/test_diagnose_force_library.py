@@ -35,7 +35,8 @@ RHO, L = 1000.0, G.web_side_m
 FINE = 10                      # fine samples per 65 Hz tick
 PLANT = {"normal_force_law.c_n90": 0.5, "wagner_lag.a_slow": 0.2, "wagner_lag.a_fast": 0.4,
          "rotating_added_mass.m_a_kg": 0.1, "added_mass_kc.m_kc_kg": 0.03, "link_inertia.m_kgpm": 0.25,
-         "link_inertia.web_t_kg": 0.012, "lateral_force.c_lat": 0.04, "link_weight_buoyancy.net_thigh_n": -0.03,
+         "link_inertia.web_t_kg": 0.012, "lateral_force.c_lat": 0.04,
+         "lateral_force.c_lat_slow": 0.012, "lateral_force.c_lat_fast": 0.02, "link_weight_buoyancy.net_thigh_n": -0.03,
          "link_weight_buoyancy.net_calf_n": -0.02, "link_weight_buoyancy.net_web_n": 0.015}
 SETS = [(10.0, -20.0, 0.3, 1.0), (-10.0, -40.0, 0.4, 2.1), (-30.0, -60.0, 0.5, 3.1), (-50.0, -80.0, 0.6, 4.2),
         (10.0, -60.0, 0.6, 5.2), (-30.0, -20.0, 0.3, 2.1), (-10.0, -80.0, 0.5, 1.0), (-50.0, -40.0, 0.4, 3.1),
@@ -108,8 +109,10 @@ def _planted(params, flow, t):
     a_t = np.einsum("ti,ti->t", a_q, tan)
     ft = -PLANT["link_inertia.web_t_kg"] * a_t
     out += _point_wrench(ft * tan[:, 0], ft * tan[:, 1], q[:, 0], q[:, 1], G.web_offset_x_m)
-    fx = PLANT["lateral_force.c_lat"] * 0.5 * RHO * L * L * np.hypot(rel[:, 0], rel[:, 1]) * np.einsum(
-        "ti,ti->t", rel, nrm)
+    # the lateral force: a share of the chord-integrated normal force, its lagged parts through the same lags
+    fx = PLANT["lateral_force.c_lat"] * f_law
+    for key, tau in (("lateral_force.c_lat_slow", 1 / (2 * 0.0455)), ("lateral_force.c_lat_fast", 1 / (2 * 0.3))):
+        fx = fx + PLANT[key] * (_lag(f_law, rate / tau, dt) - f_law)
     out[:, 0] += fx
     out[:, 4] += q[:, 1] * fx
     out[:, 5] -= q[:, 0] * fx
@@ -208,6 +211,9 @@ def test_truth_reference_gives_the_rich_truths_values_in_the_librarys_terms():
     assert ref["added_mass_error"]["delta_kg"] == pytest.approx(m_a + 0.010 - 2 * np.pi * 1000 * 0.03 ** 3 - 0.010)
     assert ref["wagner_lag"]["a_slow"] == pytest.approx(0.165 * 1.17)
     assert ref["wagner_lag"]["tau_fast_chords"] == pytest.approx(1 / 0.6)
+    # the lateral force: 3 % of the lagged normal force, so 3 % of each of its terms
+    assert ref["lateral_force"] == pytest.approx({"c_lat": 0.03 * 1.17, "c_lat_slow": 0.03 * 0.165 * 1.17,
+                                                  "c_lat_fast": 0.03 * 0.335 * 1.17})
     assert ref["link_weight_buoyancy"]["net_n"] == pytest.approx(
         9.81 * ((1000 * 18.5e-6 - 0.020) + (1000 * 11e-6 - 0.012) + (1000 * 10.8e-6 - 0.010)))   # -0.017 N
     assert truth_reference(TrueLegModel("ef").describe()) == {}

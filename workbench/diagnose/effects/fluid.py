@@ -13,6 +13,7 @@ import numpy as np
 from workbench.diagnose.effects.base import ALL_CHANNELS, Context, Effect, SearchParam, Terms
 from workbench.diagnose.evidence import ccf_clause
 from workbench.diagnose.flowterms import add_point_force, first_order_lag
+from workbench.errors import ModelError
 
 
 class _UnitTermEffect(Effect):
@@ -310,13 +311,9 @@ class WagnerLag(Effect):
 
         def make():
             f, m = kin.normal_law(self.quadrature)
-            fm = np.stack([f, m], axis=-1)
-            speed = np.maximum(kin.speed, self.floor)
-            taus = np.array(self.JONES_CHORDS) * self.time_scale * self.chord_m
-            # both lags in one pass: input (B, T, 2 lags, force/couple), rates (B, T, 2 lags)
-            lagged = first_order_lag(np.repeat(fm[:, :, None, :], 2, axis=2), speed[..., None] / taus, ctx.dt_s)
+            lagged = jones_lagged(ctx, self.quadrature, self.chord_m, self.floor, self.time_scale)
             return np.stack([kin.normal_law_wrench(lagged[:, :, i, 0] - f, lagged[:, :, i, 1] - m)
-                             for i in range(len(taus))])
+                             for i in range(lagged.shape[2])])
 
         cols = kin._memo(("wagner", self.quadrature, self.chord_m, self.floor, self.time_scale), make)
         return Terms(["a_slow", "a_fast"], [cols[0], cols[1]], [ALL_CHANNELS, ALL_CHANNELS])
@@ -431,40 +428,68 @@ class LinkInertia(_LinkQuadrature):
 
 
 class LateralForce(Effect):
-    """Spanwise (lateral, fx) force of the finite web: fx = c_lat 0.5 rho S |V| V_n at Q.
+    """Spanwise (lateral, fx) force of the finite web, a share of its normal force, through the same lags.
 
     A square web's tip flow pushes it sideways in proportion to its normal load; the EF has no
-    fx at all. Linear in ``c_lat`` (a fraction of the normal force times its coefficient).
+    fx at all. That load is circulatory, so it follows the normal force's unsteady lag:
+    ``fx = c_lat F + c_lat_slow (L_slow F - F) + c_lat_fast (L_fast F - F)`` at Q, with ``F`` the
+    normal-force law per unit coefficient (``0.5 rho L int |V| V_n ds``) and ``L_i`` Jones' two
+    lags of :class:`WagnerLag` (10.99 and 1.667 chords times ``time_scale``). Linear in all three
+    coefficients; a lateral force that is a share ``k`` of a Wagner-lagged normal force reads
+    ``c_lat = k c_n90``, ``c_lat_<i> = k a_<i>``. Without its lags (option ``lag: none``) the
+    quasi-steady share alone misses the phase of the force, and the torques it makes about the
+    load cell (``ty = z fx``, ``tz = -y fx``) then follow fz like a small crosstalk lever.
     """
 
     name = "lateral_force"
-    ranges = {"c_lat": (-0.5, 0.5)}
-    formula = "fx = c_lat 0.5 rho S |V| V_n at Q (ty, tz from its arm)"
+    ranges = {"c_lat": (-0.5, 0.5), "c_lat_slow": (-0.5, 0.5), "c_lat_fast": (-0.5, 0.5)}
+    formula = ("fx = c_lat F + c_lat_slow (L_slow F - F) + c_lat_fast (L_fast F - F) at Q, F = 0.5 rho L "
+               "int |V| V_n ds, L_i Jones' lags (ty, tz from its arm)")
+    LAGS = ("wagner", "none")
 
     @classmethod
     def truth_params(cls, t):  # noqa: D102
-        return {"c_lat": t.p.get("lateral_fraction", 0.0) * t.c_n}
+        share = t.p.get("lateral_fraction", 0.0)
+        lagged = WagnerLag.truth_params(t)
+        return {"c_lat": share * t.c_n, "c_lat_slow": share * lagged["a_slow"], "c_lat_fast": share * lagged["a_fast"]}
 
     @classmethod
     def truth_notes(cls, t):  # noqa: D102
-        return {"c_lat": "a fraction of the lagged normal force in the truth (the fit sees less)"}
+        return {"c_lat": "a share of the truth's lagged normal force (its lags: c_lat_slow, c_lat_fast)"}
+
+    def __init__(self, lag: str = "wagner", time_scale: float = 1.0):
+        if lag not in self.LAGS:
+            raise ModelError(f"lateral_force: lag must be {' or '.join(repr(x) for x in self.LAGS)}, not {lag!r}")
+        self.lag = lag
+        self.time_scale = float(time_scale)
+
+    def options(self) -> dict:  # noqa: D102
+        return {"lag": self.lag, "time_scale": self.time_scale}
 
     def linear_names(self):  # noqa: D102
-        return ["c_lat"]
+        return ["c_lat", "c_lat_slow", "c_lat_fast"] if self.lag == "wagner" else ["c_lat"]
 
     def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
         kin = ctx.kin
+        q = kin.state.q
 
-        def make():
-            f, _m = kin.normal_law()
-            q = kin.state.q
+        def lateral(f):
             out = np.zeros(f.shape + (6,))
             out[..., 0] = f
             out[..., 4] = q[..., 1] * f
             out[..., 5] = -q[..., 0] * f
             return out
 
-        return Terms(["c_lat"], [kin._memo(("lateral",), make)], [ALL_CHANNELS])
+        cols = [kin._memo(("lateral",), lambda: lateral(kin.normal_law()[0]))]
+        if self.lag == "wagner":
+            def lagged():
+                f = kin.normal_law()[0]
+                lag = jones_lagged(ctx, time_scale=self.time_scale)
+                return np.stack([lateral(lag[:, :, i, 0] - f) for i in range(lag.shape[2])])
+
+            pair = kin._memo(("lateral_lags", self.time_scale), lagged)
+            cols += [pair[0], pair[1]]
+        return Terms(self.linear_names(), cols, [ALL_CHANNELS] * len(cols))
 
 
 class LinkWeightBuoyancy(_LinkQuadrature):
@@ -503,3 +528,24 @@ LIBRARY_RANK = 0  # place in the library's order (workbench.diagnose.library._in
 EFFECTS = (AddedMassError, DragCoefficientError, LinkDrag, Lift, LegWeightBuoyancy, CirculatoryLag,
                  NormalForceLaw, WagnerLag, RotatingAddedMass, AddedMassKC, LinkInertia, LateralForce,
                  LinkWeightBuoyancy, WeightBuoyancyCouple)
+
+
+def jones_lagged(ctx: Context, quadrature: int = 5, chord_m: float = 0.06, floor_mps: float = 0.05,
+                 time_scale: float = 1.0) -> np.ndarray:
+    """The normal-force law (force at Q and its couple) through Jones' two lags: (B, T, 2 lags, 2).
+
+    Lag ``i`` is first order with time constant ``JONES_CHORDS[i] * time_scale * chord / max(|V_rel|,
+    floor)``; shared by :class:`WagnerLag` (the normal force) and :class:`LateralForce` (the spanwise
+    force the same circulation makes), computed once per motion.
+    """
+    kin = ctx.kin
+
+    def make():
+        f, m = kin.normal_law(quadrature)
+        fm = np.stack([f, m], axis=-1)
+        speed = np.maximum(kin.speed, floor_mps)
+        taus = np.array(WagnerLag.JONES_CHORDS) * time_scale * chord_m
+        # both lags in one pass: input (B, T, 2 lags, force/couple), rates (B, T, 2 lags)
+        return first_order_lag(np.repeat(fm[:, :, None, :], 2, axis=2), speed[..., None] / taus, ctx.dt_s)
+
+    return kin._memo(("jones", quadrature, chord_m, floor_mps, time_scale, ctx.dt_s), make)
