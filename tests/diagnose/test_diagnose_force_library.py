@@ -23,7 +23,9 @@ from workbench.diagnose.effects.fluid import (
     LinkWeightBuoyancy,
     NormalForceLaw,
     RotatingAddedMass,
+    TangentialFriction,
     WagnerLag,
+    WebAddedInertia,
 )
 from workbench.diagnose.problem import FitSettings, Problem
 from workbench.hydro.ef import EmpiricalFormula
@@ -36,7 +38,8 @@ FINE = 10                      # fine samples per 65 Hz tick
 PLANT = {"normal_force_law.c_n90": 0.5, "wagner_lag.a_slow": 0.2, "wagner_lag.a_fast": 0.4,
          "rotating_added_mass.m_a_kg": 0.1, "added_mass_kc.m_kc_kg": 0.03, "link_inertia.m_kgpm": 0.25,
          "link_inertia.web_t_kg": 0.012, "lateral_force.c_lat": 0.04,
-         "lateral_force.c_lat_slow": 0.012, "lateral_force.c_lat_fast": 0.02, "link_weight_buoyancy.net_thigh_n": -0.03,
+         "lateral_force.c_lat_slow": 0.012, "lateral_force.c_lat_fast": 0.02,
+         "tangential_friction.c_t": 0.03, "web_added_inertia.i_kgm2": 2e-5, "link_weight_buoyancy.net_thigh_n": -0.03,
          "link_weight_buoyancy.net_calf_n": -0.02, "link_weight_buoyancy.net_web_n": 0.015}
 SETS = [(10.0, -20.0, 0.3, 1.0), (-10.0, -40.0, 0.4, 2.1), (-30.0, -60.0, 0.5, 3.1), (-50.0, -80.0, 0.6, 4.2),
         (10.0, -60.0, 0.6, 5.2), (-30.0, -20.0, 0.3, 2.1), (-10.0, -80.0, 0.5, 1.0), (-50.0, -40.0, 0.4, 3.1),
@@ -114,6 +117,11 @@ def _planted(params, flow, t):
     for key, tau in (("lateral_force.c_lat_slow", 1 / (2 * 0.0455)), ("lateral_force.c_lat_fast", 1 / (2 * 0.3))):
         fx = fx + PLANT[key] * (_lag(f_law, rate / tau, dt) - f_law)
     out[:, 0] += fx
+    # skin friction along the web (its tangent) at Q, and the web's rotational added inertia (a tx couple)
+    v_t = np.einsum("ti,ti->t", rel, tan)
+    f_fric = PLANT["tangential_friction.c_t"] * 0.5 * RHO * L * L * np.abs(v_t) * v_t
+    out += _point_wrench(f_fric * tan[:, 0], f_fric * tan[:, 1], q[:, 0], q[:, 1], G.web_offset_x_m)
+    out[:, 3] -= PLANT["web_added_inertia.i_kgm2"] * d(om)
     out[:, 4] += q[:, 1] * fx
     out[:, 5] -= q[:, 0] * fx
     # thigh (O-C) and calf (B to the web's near edge): inertia per length, spread weight
@@ -161,7 +169,7 @@ def campaign():
 @pytest.mark.slow
 def test_planted_force_effects_come_back_with_their_parameters(campaign):
     effects = [NormalForceLaw(), WagnerLag(), RotatingAddedMass(), AddedMassKC(), LinkInertia(), LateralForce(),
-               LinkWeightBuoyancy(), AddedMassError(), DragCoefficientError()]
+               LinkWeightBuoyancy(), AddedMassError(), DragCoefficientError(), TangentialFriction(), WebAddedInertia()]
     cfg = Configuration([Active(e, {}) for e in effects])
     names = [f"{e.name}.{n}" for e in effects for n in e.linear_names()]
     problem = Problem(campaign, EmpiricalFormula(), None, FitSettings())
@@ -212,6 +220,8 @@ def test_truth_reference_gives_the_rich_truths_values_in_the_librarys_terms():
     assert ref["wagner_lag"]["a_slow"] == pytest.approx(0.165 * 1.17)
     assert ref["wagner_lag"]["tau_fast_chords"] == pytest.approx(1 / 0.6)
     # the lateral force: 3 % of the lagged normal force, so 3 % of each of its terms
+    assert ref["tangential_friction"] == {"c_t": 0.03}
+    assert ref["web_added_inertia"]["i_kgm2"] == pytest.approx(1000 * np.pi * 0.03 ** 4 / 8 * 0.06)   # 1.9e-5
     assert ref["lateral_force"] == pytest.approx({"c_lat": 0.03 * 1.17, "c_lat_slow": 0.03 * 0.165 * 1.17,
                                                   "c_lat_fast": 0.03 * 0.335 * 1.17})
     assert ref["link_weight_buoyancy"]["net_n"] == pytest.approx(

@@ -82,7 +82,7 @@ def test_library_composes_and_names_its_terms():
     assert lib.names() == ["added_mass_error", "drag_coefficient_error", "link_drag"]
     names = lib.get_feature_names()
     assert any(n.startswith("added_mass_error.delta_kg") and "a_n" in n for n in names)
-    assert len(default_library()) == 20
+    assert len(default_library()) == 22
     assert "servo_lag.tau_s (searched)" in " ".join(default_library().get_feature_names())
     with pytest.raises(ModelError):
         lib + AddedMassError()

@@ -492,6 +492,65 @@ class LateralForce(Effect):
         return Terms(self.linear_names(), cols, [ALL_CHANNELS] * len(cols))
 
 
+class TangentialFriction(Effect):
+    """Skin friction along the web: dF_t = c_t 0.5 rho L^2 |v_t| v_t along its tangent at Q.
+
+    Water sliding along the plate (``v_t`` the tangential relative velocity at Q) drags it
+    along its own plane; the EF's force is purely normal. A flat plate's friction coefficient,
+    both faces, is a few hundredths at these Reynolds numbers (laminar Blasius ``2 x 1.33 /
+    sqrt(Re)``: 0.027 at Re = 10^4). Linear in ``c_t``.
+    """
+
+    name = "tangential_friction"
+    ranges = {"c_t": (-0.05, 0.3)}
+    formula = "dF_t = c_t 0.5 rho L^2 |v_t| v_t along the web's tangent at Q"
+
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        return {"c_t": t.p.get("c_t", 0.03)}
+
+    def linear_names(self):  # noqa: D102
+        return ["c_t"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        kin = ctx.kin
+
+        def make():
+            st, v_t = kin.state, kin.v_t
+            f_t = 0.5 * kin.rho * kin.geometry.web_side_m ** 2 * np.abs(v_t) * v_t
+            return add_point_force(np.zeros(v_t.shape + (6,)), f_t[..., None] * st.tangent, st.q,
+                                   kin.geometry.web_offset_x_m)
+
+        return Terms(["c_t"], [kin._memo(("friction",), make)], [ALL_CHANNELS])
+
+
+class WebAddedInertia(Effect):
+    """Rotational inertia of the web about its own axis at Q: tx -= i_kgm2 (d omega_web / dt).
+
+    A plate turning about its mid-chord drives the water beside it: an added moment of
+    inertia ``pi rho b^4 / 8`` per unit span (b half the chord; 1.9e-5 kg m^2 for a 6 cm
+    square web), a couple in the leg's plane that no force at Q gives (the web's own
+    rotational inertia, a few 10^-6 kg m^2, adds to it). Linear in ``i_kgm2``.
+    """
+
+    name = "web_added_inertia"
+    ranges = {"i_kgm2": (-5e-5, 2e-4)}
+    formula = "tx -= i_kgm2 (d omega_web / dt) (a couple in the leg's plane)"
+
+    @classmethod
+    def truth_params(cls, t):  # noqa: D102
+        side = t.geo.get("web_side_m", 0.06)
+        return {"i_kgm2": t.p.get("rho_kgpm3", 1000.0) * np.pi * (side / 2) ** 4 / 8 * side}
+
+    def linear_names(self):  # noqa: D102
+        return ["i_kgm2"]
+
+    def force_terms(self, ctx: Context, nl: dict) -> Terms:  # noqa: D102
+        kin = ctx.kin
+        col = kin._memo(("web_inertia",), lambda: kin.couple_wrench(-kin.web_acc))
+        return Terms(["i_kgm2"], [col], [np.arange(6) == 3])
+
+
 class LinkWeightBuoyancy(_LinkQuadrature):
     """Weight minus buoyancy spread over thigh, calf (evenly along each) and web (at Q): net_<part>_n, + up."""
 
