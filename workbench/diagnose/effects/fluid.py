@@ -586,7 +586,7 @@ LIBRARY_RANK = 0  # place in the library's order (workbench.diagnose.library._in
 
 EFFECTS = (AddedMassError, DragCoefficientError, LinkDrag, Lift, LegWeightBuoyancy, CirculatoryLag,
                  NormalForceLaw, WagnerLag, RotatingAddedMass, AddedMassKC, LinkInertia, LateralForce,
-                 LinkWeightBuoyancy, WeightBuoyancyCouple)
+                 LinkWeightBuoyancy, WeightBuoyancyCouple, TangentialFriction, WebAddedInertia)
 
 
 def jones_lagged(ctx: Context, quadrature: int = 5, chord_m: float = 0.06, floor_mps: float = 0.05,
