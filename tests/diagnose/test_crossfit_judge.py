@@ -205,3 +205,36 @@ def test_a_per_run_fit_judged_over_every_run_finds_a_tone_the_held_out_runs_alon
     split, cv = (p < 5e-4).mean(axis=0)  # the level of a step with about 19 candidates
     assert cv >= 0.7, cv
     assert cv > split + 0.3, (split, cv)
+
+
+def test_a_cross_fitted_effect_is_reported_with_the_test_it_was_claimed_on():
+    """The claim's sentence and ``test`` carry the cross-fitted test for an effect judged so (loop_claims._gain).
+
+    Until 1 Dec 2026 the report re-judged every claim on the split's held-out sets: the demo
+    diagnosis printed ``leg_weight_buoyancy`` at "held-out t = 1.3" (p 0.10), claimed cross-fitted at t 5.4.
+    """
+    from workbench.diagnose.loop_claims import _gain
+    from workbench.diagnose.loop_settings import DiagnoseSettings
+
+    rng = np.random.default_rng(8)
+    x, y, run, order, held, fold = _campaign(rng, 0.1, 0.1)
+    w = np.ones(6)
+    g1, g0 = _grams({"x": x}, y, run, order, held), _grams({}, y, run, order, held)
+    f1, f0 = lsq.fit(g1, w, 2), lsq.fit(g0, w, 2)
+    f1.grams, f0.grams = g1, g0
+    problem = types.SimpleNamespace(weights=w, block_folds=lambda grams, k: fold)
+    s = DiagnoseSettings()
+    assert s.selection.judge_folds >= 2
+    crossfitted = types.SimpleNamespace(name="static", crossfit=True)
+    plain = types.SimpleNamespace(name="force", crossfit=False)
+
+    test, gain = _gain(f0, f1, 2, problem, [crossfitted], s)
+    want, want_gain = crossfit_judge(f0, f1, fold, w, 2)
+    assert test["folds"] == 3 and test["t"] == pytest.approx(want["t"])
+    assert np.allclose(gain, want_gain)
+    # an effect judged on the split keeps the split's test, and so does a call without the problem
+    split, _ = judge(f0, f1, g1, 2)
+    for args in ((problem, [plain], s), ()):
+        t2, _ = _gain(f0, f1, 2, *args)
+        assert "folds" not in t2 and t2["t"] == pytest.approx(split["t"])
+    assert test["t"] != pytest.approx(split["t"])
