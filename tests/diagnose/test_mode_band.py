@@ -144,3 +144,48 @@ def test_the_rise_measures_a_resonance_and_not_a_falling_spectrum():
     assert StructuralResonance().not_ringing({"f_n_hz": 4.0, "zeta": 0.05}, ring, None) is None
     why = StructuralResonance().not_ringing({"f_n_hz": 4.0, "zeta": 0.05}, _runs(_brown), None)
     assert why is not None and "does not ring" in why
+
+
+def _plausible(p):
+    """The loop's structural check (``loop._diagnose``'s ``plausible``): the effect's own check on the probe."""
+
+    def plausible(cand, config, fit):
+        why = cand.effect.check(cand, p, config, fit)
+        return (False, why) if why else (True, "")
+
+    return plausible
+
+
+def _claimed(problem, f_n, zeta):
+    """A selection's end state with one mode claimed at (f_n, zeta): config, names, fit."""
+    from workbench.diagnose.chain import Active, Configuration
+    from workbench.diagnose.effects.resonance import StructuralResonance
+
+    config = Configuration([Active(StructuralResonance(), {"f_n_hz": f_n, "zeta": zeta})])
+    return config, [], problem.fit(config, names=[])
+
+
+def test_a_mode_refined_to_values_where_nothing_rings_is_dropped_at_the_end(clean):
+    """The final refinement moved a mode off the line it was claimed on (EF, a 5 Hz vibration in tz beside a
+    crosstalk: claimed at 4.90 Hz, zeta 0.040, refined to 6.78 Hz, zeta 0.012): its check is made again there."""
+    from workbench.diagnose.selection_finish import drop_unsupported
+
+    p, _ = clean
+    config, names, fit = _claimed(p.problem, 6.78, 0.012)
+    s = p.settings.selection
+    out, out_names, _, _, table = drop_unsupported(s, p.problem, config, names, fit, [], [], _plausible(p))
+    assert out.names() == [] and out_names == []
+    assert len(table) == 1 and table[0]["effect"] == "structural_resonance" and not table[0]["ok"]
+    assert "dropped after the final refinement" in table[0]["note"] and "does not ring" in table[0]["note"], table
+    # without the loop's check nothing is judged
+    kept, *_ = drop_unsupported(s, p.problem, config, names, fit, [], [], None)
+    assert kept.names() == ["structural_resonance"]
+
+
+def test_the_planted_mode_at_its_values_is_kept_at_the_end(probe):
+    from workbench.diagnose.selection_finish import drop_unsupported
+
+    p, _ = probe
+    config, names, fit = _claimed(p.problem, 4.5, 0.08)
+    out, _, _, _, table = drop_unsupported(p.settings.selection, p.problem, config, names, fit, [], [], _plausible(p))
+    assert out.names() == ["structural_resonance"] and table == []

@@ -36,7 +36,7 @@ from workbench.diagnose.chain import Active, Configuration
 from workbench.diagnose.effects.base import Effect, EffectLibrary
 from workbench.diagnose.selection_candidates import candidates, held_at_bounds
 from workbench.diagnose.selection_claims import ambiguous, assess, judge_all, magnitude_intervals, pick  # noqa: F401
-from workbench.diagnose.selection_finish import backward_check, drop_refused, refine, settle
+from workbench.diagnose.selection_finish import backward_check, drop_refused, drop_unsupported, refine, settle
 from workbench.diagnose.selection_judge import _null_spread_test, block_llr, heldout_mse, judge  # noqa: F401
 from workbench.diagnose.selection_records import (  # noqa: F401 - importable from here as before the split
     Candidate,
@@ -360,10 +360,12 @@ class StepwiseSelection:
     def _finish(self, problem, path: "_Path", more: tuple | None = None) -> SelectionResult:
         """Refine the searched parameters jointly, then drop effects that no longer earn their place.
 
-        ``more`` (library, peaks_of, plausible, progress): when the refinement has moved a
-        look-ahead effect's values (a delay), the selection goes on from the refined configuration
-        (an effect the held delay's remainder hid, such as a drift, may now be significant), and
-        the new configuration is refined again.
+        ``more`` (library, peaks_of, plausible, progress): an effect with a structural check is
+        checked again at its refined values (``plausible``) and dropped if it fails there; when the
+        refinement has moved a look-ahead effect's values (a delay), or an effect was dropped so, the
+        selection goes on from the refined configuration (an effect the held delay's remainder, or
+        the dropped effect, hid, such as a drift, may now be significant), and the new
+        configuration is refined again.
         """
         config, names, current = path.config, path.names, path.current
         steps, table = list(path.steps), path.table
@@ -373,8 +375,14 @@ class StepwiseSelection:
             config, current = refine(self.settings, problem, config, path.coefs, names, current)
             if self._following(problem):
                 config, names, current, steps, table = drop_refused(self.settings, problem, config, names, current, steps, table)
+            had = len(config.actives)
+            config, names, current, steps, table = drop_unsupported(self.settings, problem, config, names, current,
+                                                                    steps, table, more and more[2])
             moved = any(a.effect.lookahead and any(abs(v - before.get(f"{a.name}.{k}", np.nan)) > 1e-9
                                                    for k, v in a.nl.items()) for a in config.actives)
+            # an effect dropped at its final values held the others where they fitted around it: the
+            # selection goes on without it too (an effect it hid may now be significant)
+            moved = moved or len(config.actives) < had
             if more is not None and moved and self._following(problem):
                 # the selection goes on from the refined values, for at most ``FOLLOW_ROUNDS`` more rounds
                 go = _Path(config, list(names), current, current.coefs(), steps, table,
@@ -386,6 +394,8 @@ class StepwiseSelection:
                     spent = go.budget_spent
                     config, current = refine(self.settings, problem, config, current.coefs(), names, current)
                     config, names, current, steps, table = drop_refused(self.settings, problem, config, names, current, steps, table)
+                    config, names, current, steps, table = drop_unsupported(self.settings, problem, config, names,
+                                                                            current, steps, table, more[2])
         names, current, change = settle(self.settings, problem, config, names, current, tol=SETTLE_TOL)
         if change > SETTLE_TOL:
             # a fixed point not reached is not a result: the record says so beside the claims
