@@ -12,7 +12,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 #: what our temporaries look like (workbench.atomic); none may be left after the next complete run
-OUR_TEMP = re.compile(r"^\..+\.wb\d+-[0-9a-f]{8}\.(tmp|part|old)")
+OUR_TEMP = re.compile(r"^\..+\.wb\d+-[0-9a-f]{8}\.(tmp|part|old|set)")
 
 
 def cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
