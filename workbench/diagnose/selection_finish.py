@@ -146,17 +146,26 @@ def drop_refused(s: SelectionSettings, problem, config, names, current, steps, t
     while True:
         why = {a.name: a.effect.refusal(dict(a.nl), s) or a.effect.implausible(dict(a.nl))
                for a in config.actives if a.effect.search}
-        bad = [n for n, w in why.items() if w]
-        if not bad:
+        bad = next((a for a in config.actives if why.get(a.name)), None)
+        if bad is None:
             return config, names, current, steps, table
-        table.append(_dropped_row(next(a for a in config.actives if a.name == bad[0]),
-                                  f"dropped after the final refinement: {why[bad[0]]}"))
-        config = config.without(bad[0])
-        names = [n for n in names if not n.startswith(bad[0] + ".")]
-        steps = [st for st in steps if st.candidate.effect.name != bad[0]]
-        current = problem.fit(config, current.coefs(), names)
-        if any(a.effect.search for a in config.actives):
-            config, current = refine(s, problem, config, current.coefs(), names, current)
+        config, names, current, steps = _drop_and_refine(s, problem, config, names, current, steps, table, bad,
+                                                         f"dropped after the final refinement: {why[bad.name]}")
+
+
+def _drop_and_refine(s: SelectionSettings, problem, config, names, current, steps, table: list, a: Active, note: str):
+    """``config`` less ``a`` (a row saying ``note`` appended to ``table``), refitted and its searched values refined.
+
+    Returns ``(config, names, current, steps)``.
+    """
+    table.append(_dropped_row(a, note))
+    config = config.without(a.name)
+    names = [n for n in names if not n.startswith(a.name + ".")]
+    steps = [st for st in steps if st.candidate.effect.name != a.name]
+    current = problem.fit(config, current.coefs(), names)
+    if any(b.effect.search for b in config.actives):
+        config, current = refine(s, problem, config, current.coefs(), names, current)
+    return config, names, current, steps
 
 
 def _checks_evidence(effect) -> bool:
@@ -181,25 +190,27 @@ def drop_unsupported(s: SelectionSettings, problem, config, names, current, step
     """
     table = list(table)
     while plausible is not None:
-        why, a = None, None
-        for a in [a for a in config.actives if _checks_evidence(a.effect)]:
-            rest = config.without(a.name)
-            rnames = [n for n in names if not n.startswith(a.name + ".")]
-            ok, why = plausible(Candidate(a.effect, a, config, names, current), rest,
-                                problem.fit(rest, current.coefs(), rnames))
-            if not ok:
-                break
-            why = None
-        if why is None:
+        failed = _first_unsupported(problem, config, names, current, plausible)
+        if failed is None:
             break
-        table.append(_dropped_row(a, f"dropped after the final refinement: at its final values {why}"))
-        config = config.without(a.name)
-        names = [n for n in names if not n.startswith(a.name + ".")]
-        steps = [st for st in steps if st.candidate.effect.name != a.name]
-        current = problem.fit(config, current.coefs(), names)
-        if any(b.effect.search for b in config.actives):
-            config, current = refine(s, problem, config, current.coefs(), names, current)
+        a, why = failed
+        config, names, current, steps = _drop_and_refine(s, problem, config, names, current, steps, table, a,
+                                                         f"dropped after the final refinement: at its final values {why}")
     return config, names, current, steps, table
+
+
+def _first_unsupported(problem, config, names, current, plausible) -> tuple[Active, str] | None:
+    """The first effect of ``config`` whose own check fails beside the others (with why), None when all pass."""
+    for a in config.actives:
+        if not _checks_evidence(a.effect):
+            continue
+        rest = config.without(a.name)
+        rnames = [n for n in names if not n.startswith(a.name + ".")]
+        ok, why = plausible(Candidate(a.effect, a, config, names, current), rest,
+                            problem.fit(rest, current.coefs(), rnames))
+        if not ok:
+            return a, why
+    return None
 
 
 def profiled(s: SelectionSettings, problem, config, a: Active, coefs: dict, rnames: list[str]):
